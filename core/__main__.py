@@ -1,0 +1,3 @@
+from nearlight.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,436 @@
+"""Capture format v1: the one module that reads and writes captures.
+
+A capture is a directory holding ``capture.json`` (camera, analyzer angles,
+optional ground truth) and ``capture.exr`` (analyzer stack or separated
+specular image, range image ``P``, optional normals ``N``, extras). The format
+is specified in the README ("Capture format v1"); this module is its reference
+implementation. The generator writes captures with :func:`write_capture`, the
+estimator reads them with :func:`read_capture`, and so does anything reading a
+real rig's captures.
+
+Arrays follow the physics conventions: images ``[H, W, C]`` with row 0 at the
+top, float32 linear radiance; positions in metres in the world frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import re
+import shutil
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nearlight.errors import UserError
+
+FORMAT = "nearlight-capture/1"
+JSON_NAME = "capture.json"
+EXR_NAME = "capture.exr"
+
+#: Layers whose three channels are named X, Y, Z (vectors); all others are R, G, B.
+VECTOR_LAYERS = ("P", "N")
+_RGB = ("R", "G", "B")
+_XYZ = ("X", "Y", "Z")
+_POL = re.compile(r"^pol(\d+)$")
+
+
+@dataclasses.dataclass(frozen=True)
+class Camera:
+    """Pinhole camera of a capture.
+
+    Attributes
+    ----------
+    position : ndarray, shape (3,)
+        Centre of projection in world coordinates, metres.
+    to_world : ndarray, shape (4, 4) or None
+        Camera-to-world transform, row-major, as the writer defines it (the
+        generator writes Mitsuba's: the camera looks along its local +z);
+        optional.
+    fov_x_deg : float or None
+        Horizontal field of view, degrees; optional.
+    """
+
+    position: np.ndarray
+    to_world: np.ndarray | None = None
+    fov_x_deg: float | None = None
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Capture:
+    """One capture: what a polarization rig with a range finder records.
+
+    Attributes
+    ----------
+    width, height : int
+        Image size in pixels.
+    camera : Camera
+    P : ndarray, shape (H, W, 3)
+        World position of the surface seen by each pixel, metres; NaN where no
+        surface (background).
+    N : ndarray, shape (H, W, 3) or None
+        Unit surface normals, when the capture has them.
+    stack : ndarray, shape (K, H, W, 3) or None
+        Radiance through an ideal analyzer at ``analyzer_angles_deg[k]``.
+    analyzer_angles_deg : ndarray, shape (K,) or None
+        Analyzer angles, degrees, as the rig defines them (the generator
+        measures them from the image's horizontal axis, Mitsuba's Stokes x
+        axis). Separation only needs their differences.
+    specular, diffuse : ndarray, shape (H, W, 3) or None
+        Already separated specular / diffuse radiance (the paper's own input).
+    lamp_polarizer_axis : ndarray, shape (3,) or None
+        World-space axis of the lamp's linear polarizer.
+    truth : dict or None
+        Ground truth (lamp position, intensity, BSDF). Estimators must never
+        read it; it is here for the evaluation.
+    extra : dict of str to ndarray
+        Every other EXR layer: ``[H, W, 3]`` for three-channel layers
+        (``truth_specular``, ``S0``...), ``[H, W]`` for single channels
+        (``mask``).
+    meta : dict
+        Every other key of ``capture.json`` (kept on a round trip).
+    source : Path or None
+        The directory this capture was read from.
+    """
+
+    width: int
+    height: int
+    camera: Camera
+    P: np.ndarray
+    N: np.ndarray | None = None
+    stack: np.ndarray | None = None
+    analyzer_angles_deg: np.ndarray | None = None
+    specular: np.ndarray | None = None
+    diffuse: np.ndarray | None = None
+    lamp_polarizer_axis: np.ndarray | None = None
+    truth: dict | None = None
+    extra: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    meta: dict[str, Any] = dataclasses.field(default_factory=dict)
+    source: Path | None = None
+
+    @property
+    def surface_mask(self) -> np.ndarray:
+        """``[H, W]`` bool: pixels that see a surface (finite ``P``)."""
+        return np.all(np.isfinite(self.P), axis=-1)
+
+    @property
+    def name(self) -> str:
+        """Human name for messages: the source directory, or ``<capture>``."""
+        return str(self.source) if self.source is not None else "<capture>"
+
+    def replace(self, **changes: Any) -> Capture:
+        """A copy with some fields replaced (arrays are not copied)."""
+        return dataclasses.replace(self, **changes)
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def read_capture(path: str | os.PathLike) -> Capture:
+    """Read a capture directory (or its ``capture.json``).
+
+    Parameters
+    ----------
+    path : path-like
+        The capture directory, or the ``capture.json`` inside it.
+
+    Returns
+    -------
+    Capture
+
+    Raises
+    ------
+    UserError
+        With a one-line message naming the file, key or channel, when the
+        capture is not valid format v1.
+    """
+    path = Path(path)
+    folder = path.parent if path.name == JSON_NAME else path
+    json_path, exr_path = folder / JSON_NAME, folder / EXR_NAME
+    if not folder.is_dir():
+        raise UserError(f"{folder}: not a capture directory (expected a folder with {JSON_NAME} and {EXR_NAME})")
+    if not json_path.is_file():
+        raise UserError(f"{json_path}: missing (a capture directory holds {JSON_NAME} and {EXR_NAME})")
+    try:
+        doc = json.loads(json_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"{json_path}: not valid JSON ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        got = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
+        raise UserError(f"{json_path}: format: expected {FORMAT!r}, got {got!r}")
+    meta = dict(doc)
+
+    def take(key: str, required: bool = False) -> Any:
+        if key not in meta and required:
+            raise UserError(f"{json_path}: {key}: missing")
+        return meta.pop(key, None)
+
+    take("format")
+    units = take("units")
+    if units not in (None, "m"):
+        raise UserError(f"{json_path}: units: expected 'm', got {units!r}")
+    width = _positive_int(take("width", True), json_path, "width")
+    height = _positive_int(take("height", True), json_path, "height")
+    cam = take("camera", True)
+    if not isinstance(cam, dict):
+        raise UserError(f"{json_path}: camera: expected an object")
+    position = _vector(cam.get("position"), json_path, "camera.position", (3,))
+    to_world = cam.get("to_world")
+    to_world = None if to_world is None else _vector(to_world, json_path, "camera.to_world", (4, 4))
+    fov = cam.get("fov_x_deg")
+    if fov is not None and not (_is_number(fov) and 0 < fov < 180):
+        raise UserError(f"{json_path}: camera.fov_x_deg: expected a number in (0, 180), got {fov!r}")
+    angles = take("analyzer_angles_deg")
+    if angles is not None:
+        angles = _vector(angles, json_path, "analyzer_angles_deg", None)
+        if angles.ndim != 1 or angles.size == 0:
+            raise UserError(f"{json_path}: analyzer_angles_deg: expected a non-empty list of numbers")
+    axis = take("lamp_polarizer_axis")
+    axis = None if axis is None else _vector(axis, json_path, "lamp_polarizer_axis", (3,))
+    truth = take("truth")
+
+    if not exr_path.is_file():
+        raise UserError(f"{exr_path}: missing (a capture directory holds {JSON_NAME} and {EXR_NAME})")
+    layers = _read_layers(exr_path, height, width)
+
+    def layer(name: str, names: tuple[str, ...]) -> np.ndarray | None:
+        chans = layers.pop(name, None)
+        if chans is None:
+            return None
+        missing = [c for c in names if c not in chans]
+        if missing:
+            raise UserError(f"{exr_path}: channel {name}.{missing[0]} missing (layer {name} needs {'/'.join(names)})")
+        return np.stack([chans[c] for c in names], axis=-1)
+
+    P = layer("P", _XYZ)
+    if P is None:
+        raise UserError(f"{exr_path}: channels P.X, P.Y, P.Z missing (the range image is required)")
+    N = layer("N", _XYZ)
+    pol_idx = sorted(int(m.group(1)) for name in layers if (m := _POL.match(name)))
+    stack = None
+    if pol_idx:
+        if angles is None:
+            raise UserError(f"{json_path}: analyzer_angles_deg missing but {exr_path.name} has pol<k> channels")
+        if pol_idx != list(range(len(angles))):
+            want = ", ".join(f"pol{k}" for k in range(len(angles)))
+            raise UserError(
+                f"{exr_path}: analyzer layers {', '.join(f'pol{k}' for k in pol_idx)} do not match "
+                f"analyzer_angles_deg ({len(angles)} angles: expected {want})"
+            )
+        stack = np.stack([layer(f"pol{k}", _RGB) for k in pol_idx])
+    elif angles is not None and "specular" not in layers:
+        raise UserError(f"{exr_path}: channel pol0.R missing (analyzer_angles_deg lists {len(angles)} angles)")
+    specular = layer("specular", _RGB)
+    diffuse = layer("diffuse", _RGB)
+    if stack is None and specular is None:
+        raise UserError(f"{exr_path}: no image: expected pol<k>.R/G/B channels or specular.R/G/B")
+
+    mask = np.all(np.isfinite(P), axis=-1)
+    if not mask.any():
+        raise UserError(f"{exr_path}: channel P.X: no finite position (no surface in the range image)")
+    for name, img in (("N", N), ("specular", specular), ("diffuse", diffuse)):
+        if img is not None and not np.all(np.isfinite(img[mask])):
+            raise UserError(f"{exr_path}: channel {name}: NaN or Inf at surface pixels")
+    if stack is not None:
+        bad = [k for k in range(len(stack)) if not np.all(np.isfinite(stack[k][mask]))]
+        if bad:
+            raise UserError(f"{exr_path}: channel pol{bad[0]}: NaN or Inf at surface pixels")
+
+    extra: dict[str, np.ndarray] = {}
+    for name, chans in layers.items():
+        if set(chans) == {""}:
+            extra[name] = chans[""]
+        elif set(_RGB) <= set(chans):
+            extra[name] = np.stack([chans[c] for c in _RGB], axis=-1)
+        elif set(_XYZ) <= set(chans):
+            extra[name] = np.stack([chans[c] for c in _XYZ], axis=-1)
+        else:
+            for c, arr in chans.items():
+                extra[f"{name}.{c}"] = arr
+
+    return Capture(
+        width=width,
+        height=height,
+        camera=Camera(position=position, to_world=to_world, fov_x_deg=None if fov is None else float(fov)),
+        P=P,
+        N=N,
+        stack=stack,
+        analyzer_angles_deg=angles,
+        specular=specular,
+        diffuse=diffuse,
+        lamp_polarizer_axis=axis,
+        truth=truth,
+        extra=extra,
+        meta=meta,
+        source=folder,
+    )
+
+
+def _read_layers(exr_path: Path, height: int, width: int) -> dict[str, dict[str, np.ndarray]]:
+    """``{layer: {channel suffix: [H, W] float32}}``; suffix ``""`` for undotted names."""
+    import OpenEXR
+
+    try:
+        with OpenEXR.File(str(exr_path), separate_channels=True) as f:
+            channels = {name: ch.pixels for name, ch in f.channels().items()}
+    except Exception as exc:  # OpenEXR raises bare RuntimeError/Exception on corrupt files
+        raise UserError(f"{exr_path}: not a readable OpenEXR file ({exc})") from None
+    layers: dict[str, dict[str, np.ndarray]] = {}
+    for name, pix in channels.items():
+        if pix.shape != (height, width):
+            raise UserError(
+                f"{exr_path}: channel {name}: shape {pix.shape[0]}x{pix.shape[1]} (HxW) does not match "
+                f"capture.json's {height}x{width}"
+            )
+        if pix.dtype.kind not in "f":
+            raise UserError(f"{exr_path}: channel {name}: expected FLOAT or HALF, got {pix.dtype}")
+        base, _, suffix = name.rpartition(".") if "." in name else (name, "", "")
+        layers.setdefault(base, {})[suffix] = pix.astype(np.float32, copy=False)
+    return layers
+
+
+def _is_number(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _positive_int(x: Any, where: Path, key: str) -> int:
+    if not (isinstance(x, int) and not isinstance(x, bool) and x > 0):
+        raise UserError(f"{where}: {key}: expected a positive integer, got {x!r}")
+    return x
+
+
+def _vector(x: Any, where: Path, key: str, shape: tuple[int, ...] | None) -> np.ndarray:
+    try:
+        arr = np.asarray(x, dtype=float)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or arr.dtype == object or not np.all(np.isfinite(arr)) or (shape is not None and arr.shape != shape):
+        want = "a list of numbers" if shape is None else ("3 numbers" if shape == (3,) else f"numbers of shape {shape}")
+        raise UserError(f"{where}: {key}: expected {want}, got {x!r}")
+    return arr
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
+    """Write ``capture`` as a capture directory, atomically.
+
+    Both files are written into a temporary sibling directory which is renamed
+    into place only when complete, so an interrupted write never leaves a
+    directory that looks like a finished capture.
+
+    Parameters
+    ----------
+    capture : Capture
+    path : path-like
+        The capture directory to create.
+    overwrite : bool, optional
+        Replace an existing capture directory at ``path``.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    UserError
+        When ``path`` exists (and ``overwrite`` is false) or cannot be written.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise UserError(f"{path}: already exists (choose another --out or remove it)")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
+    except OSError as exc:
+        raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None
+    try:
+        (tmp / JSON_NAME).write_text(json.dumps(capture_json(capture), indent=2) + "\n")
+        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+        OpenEXR.File(header, _channels(capture)).write(str(tmp / EXR_NAME))
+        if path.exists():
+            shutil.rmtree(path)
+        tmp.rename(path)
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return path
+
+
+def capture_json(capture: Capture) -> dict[str, Any]:
+    """The ``capture.json`` document of ``capture`` (a JSON-ready dict)."""
+    cam: dict[str, Any] = {"position": _list(capture.camera.position)}
+    if capture.camera.to_world is not None:
+        cam["to_world"] = _list(capture.camera.to_world)
+    if capture.camera.fov_x_deg is not None:
+        cam["fov_x_deg"] = float(capture.camera.fov_x_deg)
+    doc: dict[str, Any] = {
+        "format": FORMAT,
+        "units": "m",
+        "width": int(capture.width),
+        "height": int(capture.height),
+        "camera": cam,
+    }
+    if capture.analyzer_angles_deg is not None:
+        doc["analyzer_angles_deg"] = _list(capture.analyzer_angles_deg)
+    if capture.lamp_polarizer_axis is not None:
+        doc["lamp_polarizer_axis"] = _list(capture.lamp_polarizer_axis)
+    if capture.truth is not None:
+        doc["truth"] = _jsonable(capture.truth)
+    for key, value in capture.meta.items():
+        doc.setdefault(key, _jsonable(value))
+    return doc
+
+
+def _channels(capture: Capture) -> dict[str, np.ndarray]:
+    """Flat ``{channel name: [H, W] float32}`` for the EXR writer."""
+    layers: dict[str, np.ndarray | None] = {"P": capture.P, "N": capture.N}
+    if capture.stack is not None:
+        layers.update({f"pol{k}": img for k, img in enumerate(capture.stack)})
+    layers.update(specular=capture.specular, diffuse=capture.diffuse)
+    layers.update(capture.extra)
+    out: dict[str, np.ndarray] = {}
+    shape = (capture.height, capture.width)
+    for name, arr in layers.items():
+        if arr is None:
+            continue
+        arr = np.asarray(arr, dtype=np.float32)
+        if arr.shape == shape:
+            out[name] = np.ascontiguousarray(arr)
+        elif arr.shape == (*shape, 3):
+            names = _XYZ if name in VECTOR_LAYERS else _RGB
+            for i, c in enumerate(names):
+                out[f"{name}.{c}"] = np.ascontiguousarray(arr[..., i])
+        else:
+            raise ValueError(f"layer {name}: shape {arr.shape}, expected {shape} or {(*shape, 3)}")
+    return out
+
+
+def _list(a: Any) -> Any:
+    return np.asarray(a, dtype=float).tolist()
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, Mapping):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, Path):
+        return str(x)
+    return x

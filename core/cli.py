@@ -1,0 +1,55 @@
+"""The ``nearlight`` command: one verb per pipeline task.
+
+Each stage package owns its verbs in a ``cli`` module exposing
+``register(subparsers)``, which adds sub-parsers whose ``run`` default is the
+function to call with the parsed arguments. Registration imports nothing heavy:
+Mitsuba is imported only when a verb that renders runs.
+
+A :class:`~nearlight.errors.UserError` anywhere becomes one line on stderr and
+exit status 2; argparse's own usage errors also exit with 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from nearlight import __version__
+from nearlight.errors import UserError
+
+#: Modules whose ``register(subparsers)`` adds verbs, in help order.
+VERB_MODULES = (
+    "nearlight.evaluation.reproduce_cli",
+    "nearlight.generator.cli",
+    "nearlight.estimator.cli",
+    "nearlight.evaluation.cli",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The top-level parser with every stage's verbs registered."""
+    parser = argparse.ArgumentParser(
+        prog="nearlight",
+        description="Benchmark near point-light position and specular reflectance estimation "
+        "from polarization images.",
+    )
+    parser.add_argument("--version", action="version", version=f"nearlight {__version__}")
+    sub = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
+    for name in VERB_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``nearlight`` command; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.run(args) or 0)
+    except UserError as exc:
+        print(f"nearlight: error: {exc}", file=sys.stderr)
+        return UserError.exit_code
+    except KeyboardInterrupt:
+        print("nearlight: interrupted", file=sys.stderr)
+        return 130

@@ -1,0 +1,217 @@
+"""Closed-form reflection models and shading geometry (numpy only).
+
+One implementation of the physics conventions of DESIGN.md, used three times:
+by the generator's tests (rendered radiance against the closed form), by the
+estimator (its forward model), and by the evaluation (re-rendering an estimate,
+Cramér–Rao bounds). Lengths in metres, angles in radians.
+
+BSDF parameter dicts are those of ``capture.json``'s ``truth.bsdf``:
+``{"model": "torrance_sparrow", "ks": [r, g, b], "sigma": s}`` or
+``{"model": "ward", "rho_s": [r, g, b], "alpha": a}``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any, NamedTuple
+
+import numpy as np
+
+
+def normalize(v: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Unit vectors along ``axis``; zero vectors give NaN."""
+    v = np.asarray(v, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return v / np.linalg.norm(v, axis=axis, keepdims=True)
+
+
+class Geometry(NamedTuple):
+    """Per-point shading geometry, arrays of shape ``[...]`` (vectors ``[..., 3]``).
+
+    Attributes
+    ----------
+    view : unit vector from the surface point to the camera.
+    light : unit vector from the surface point to the lamp.
+    r : distance from the surface point to the lamp, metres.
+    cos_r : cos θr, normal · view.
+    cos_i : cos θi, normal · light.
+    alpha : α, angle between the normal and the half vector, radians.
+    """
+
+    view: np.ndarray
+    light: np.ndarray
+    r: np.ndarray
+    cos_r: np.ndarray
+    cos_i: np.ndarray
+    alpha: np.ndarray
+
+
+def shading_geometry(P: np.ndarray, N: np.ndarray, camera_position: np.ndarray, lamp_position: np.ndarray) -> Geometry:
+    """Angles and distances for a near point lamp and a perspective camera.
+
+    Parameters
+    ----------
+    P : ndarray, shape (..., 3)
+        Surface points, metres.
+    N : ndarray, shape (..., 3)
+        Unit normals at ``P``.
+    camera_position, lamp_position : ndarray, shape (3,) or broadcastable to P
+        Centre of projection and lamp position, metres.
+
+    Returns
+    -------
+    Geometry
+    """
+    P = np.asarray(P, dtype=float)
+    N = np.asarray(N, dtype=float)
+    to_light = np.asarray(lamp_position, dtype=float) - P
+    r = np.linalg.norm(to_light, axis=-1)
+    light = to_light / r[..., None]
+    view = normalize(np.asarray(camera_position, dtype=float) - P)
+    half = normalize(light + view)
+    cos_r = np.sum(N * view, axis=-1)
+    cos_i = np.sum(N * light, axis=-1)
+    alpha = np.arccos(np.clip(np.sum(N * half, axis=-1), -1.0, 1.0))
+    return Geometry(view, light, r, cos_r, cos_i, alpha)
+
+
+def torrance_sparrow(cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, *, ks: Any, sigma: float) -> np.ndarray:
+    """Simplified Torrance–Sparrow BRDF of the paper (eq. 6), 1/sr.
+
+    ``f = Ks exp(-α² / 2σ²) / (cos θi cos θr)``, so that the reflected radiance
+    is ``(I / r²) Ks / cos θr · exp(-α² / 2σ²)``.
+
+    Parameters
+    ----------
+    cos_i, cos_r, alpha : ndarray, shape (...)
+    ks : array_like, shape (3,) or scalar
+    sigma : float
+        Roughness, the standard deviation of the microfacet slope angle, radians.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+    """
+    lobe = np.exp(-np.square(alpha) / (2.0 * sigma**2)) / (cos_i * cos_r)
+    return lobe[..., None] * np.broadcast_to(np.asarray(ks, dtype=float), (3,))
+
+
+def ward(cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, *, rho_s: Any, alpha_w: float) -> np.ndarray:
+    """Isotropic Ward BRDF as in RADIANCE (paper eq. 19), 1/sr.
+
+    ``f = ρs exp(-tan²α / σ'²) / (4π σ'² sqrt(cos θi cos θr))``.
+
+    Parameters
+    ----------
+    cos_i, cos_r, alpha : ndarray, shape (...)
+    rho_s : array_like, shape (3,) or scalar
+        Specular reflectance.
+    alpha_w : float
+        Ward roughness σ' (the ``alpha`` key of a ``ward`` BSDF dict).
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+    """
+    with np.errstate(invalid="ignore"):
+        lobe = np.exp(-np.square(np.tan(alpha)) / alpha_w**2) / (4.0 * np.pi * alpha_w**2 * np.sqrt(cos_i * cos_r))
+    return lobe[..., None] * np.broadcast_to(np.asarray(rho_s, dtype=float), (3,))
+
+
+def _ts(g: Geometry, bsdf: Mapping[str, Any]) -> np.ndarray:
+    return torrance_sparrow(g.cos_i, g.cos_r, g.alpha, ks=bsdf["ks"], sigma=float(bsdf["sigma"]))
+
+
+def _ward(g: Geometry, bsdf: Mapping[str, Any]) -> np.ndarray:
+    return ward(g.cos_i, g.cos_r, g.alpha, rho_s=bsdf["rho_s"], alpha_w=float(bsdf["alpha"]))
+
+
+#: Specular BRDFs by the ``model`` name used in scene files and ``truth.bsdf``.
+SPECULAR_MODELS: dict[str, Callable[[Geometry, Mapping[str, Any]], np.ndarray]] = {
+    "torrance_sparrow": _ts,
+    "ward": _ward,
+}
+
+
+def specular_radiance(
+    P: np.ndarray,
+    N: np.ndarray,
+    camera_position: np.ndarray,
+    lamp_position: np.ndarray,
+    intensity: Any,
+    bsdf: Mapping[str, Any],
+) -> np.ndarray:
+    """Specular radiance reflected towards the camera by a point lamp.
+
+    ``L = (I / r²) · f · cos θi``, zero where the lamp or the camera is below
+    the surface. No shadowing or inter-reflection.
+
+    Parameters
+    ----------
+    P, N : ndarray, shape (..., 3)
+        Surface points (metres) and unit normals.
+    camera_position, lamp_position : ndarray, shape (3,)
+    intensity : array_like, shape (3,) or scalar
+        Radiant intensity of the lamp reaching the surface, W/sr per channel
+        (half the lamp's own intensity behind an ideal polarizer).
+    bsdf : mapping
+        A BSDF dict with a ``model`` key in :data:`SPECULAR_MODELS`.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+    """
+    g = shading_geometry(P, N, camera_position, lamp_position)
+    try:
+        f = SPECULAR_MODELS[bsdf["model"]](g, bsdf)
+    except KeyError:
+        raise ValueError(f"no closed form for specular model {bsdf.get('model')!r}") from None
+    return _irradiance(g, intensity) * np.where(_lit(g), f, 0.0)
+
+
+def diffuse_radiance(
+    P: np.ndarray,
+    N: np.ndarray,
+    camera_position: np.ndarray,
+    lamp_position: np.ndarray,
+    intensity: Any,
+    kd: Any,
+) -> np.ndarray:
+    """Lambertian radiance ``(I / r²) · kd / π · cos θi``, shape ``(..., 3)``.
+
+    Parameters as :func:`specular_radiance`; ``kd`` is the diffuse albedo, shape (3,).
+    """
+    g = shading_geometry(P, N, camera_position, lamp_position)
+    f = np.broadcast_to(np.asarray(kd, dtype=float) / np.pi, (*g.r.shape, 3))
+    return _irradiance(g, intensity) * np.where(_lit(g), f, 0.0)
+
+
+def _lit(g: Geometry) -> np.ndarray:
+    return ((g.cos_i > 0) & (g.cos_r > 0))[..., None]
+
+
+def _irradiance(g: Geometry, intensity: Any) -> np.ndarray:
+    """``I cos θi / r²`` per channel, shape ``(..., 3)``."""
+    return (np.clip(g.cos_i, 0.0, None) / np.square(g.r))[..., None] * np.asarray(intensity, dtype=float)
+
+
+def mirror_direction(N: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """Direction of the mirror reflection of ``V`` about ``N`` (paper eq. 8).
+
+    ``L_p = 2 (N·V) N − V`` for unit ``N`` and ``V`` (the paper writes it as
+    ``N + (N, V) N − V``, which equals it only when ``N·V = 1``; we use the
+    exact mirror so that θi = θr holds).
+
+    Parameters
+    ----------
+    N, V : ndarray, shape (..., 3)
+        Unit normal and unit vector towards the viewer.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Unit vectors.
+    """
+    N = np.asarray(N, dtype=float)
+    V = np.asarray(V, dtype=float)
+    return normalize(2.0 * np.sum(N * V, axis=-1, keepdims=True) * N - V)
