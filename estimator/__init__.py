@@ -1,0 +1,1 @@
+"""Estimator: lamp position and specular reflectance from one capture (numpy/scipy only)."""

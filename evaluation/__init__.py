@@ -1,0 +1,1 @@
+"""Evaluation: sweeps, metrics, tables, plots, regression checks and the paper reproduction."""

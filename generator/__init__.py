@@ -1,0 +1,1 @@
+"""Generator: scene files to polarized captures, rendered with Mitsuba 3."""
