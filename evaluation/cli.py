@@ -1,0 +1,98 @@
+"""Verbs ``sweep``, ``report`` and ``compare`` of the ``nearlight`` command."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from nearlight.errors import UserError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``sweep``, ``report`` and ``compare`` to the ``nearlight`` command."""
+    p = subparsers.add_parser(
+        "sweep",
+        help="run (or resume) a sweep file into a results folder",
+        description="Expand a sweep file into tasks, render each physical configuration once, run every "
+        "estimator on every capture and write one Parquet row per task into DIR. The same command resumes "
+        "an interrupted sweep.",
+    )
+    p.add_argument("sweep", metavar="SWEEP.yaml")
+    p.add_argument("--out", required=True, metavar="DIR", help="results folder (resumed when it exists)")
+    p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on this Dask distributed scheduler")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(run=_sweep)
+
+    p = subparsers.add_parser(
+        "report",
+        help="error tables (Markdown, CSV) and plots (PNG) of a sweep's results",
+        description="Write DIR/report/: tables of mean, median and 90th percentile of every error per method "
+        "and axis value, the Cramér–Rao bounds beside each method's RMSE, and error plots.",
+    )
+    p.add_argument("dir", metavar="DIR")
+    p.add_argument("--out", metavar="REPORT_DIR", help="default DIR/report")
+    p.set_defaults(run=_report)
+
+    p = subparsers.add_parser(
+        "compare",
+        help="regression check of a sweep's results against a baseline",
+        description="Print the metrics that got worse than in BASELINE_DIR by more than the tolerance "
+        "(per method: mean over the tasks both ran); exit 1 if any did, 0 if none.",
+    )
+    p.add_argument("new", metavar="NEW_DIR")
+    p.add_argument("baseline", metavar="BASELINE_DIR")
+    p.add_argument("--tolerance", type=float, default=0.05, metavar="REL",
+                   help="allowed relative increase of a mean error (default 0.05 = 5%%)")
+    p.add_argument("--atol", type=float, default=1e-6, metavar="ABS",
+                   help="allowed absolute increase, in the metric's units (default 1e-6)")
+    p.add_argument("--include-runtime", action="store_true", help="also compare runtime_s")
+    p.set_defaults(run=_compare)
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from nearlight.evaluation.engine import run_sweep
+    from nearlight.evaluation.sweep import load_sweep
+
+    if args.workers < 1:
+        raise UserError(f"--workers: expected a positive integer, got {args.workers}")
+    sweep = load_sweep(args.sweep)
+    where = f"Dask scheduler {args.scheduler}" if args.scheduler else f"{args.workers} local worker(s)"
+    print(
+        f"sweep {sweep.name}: {len(sweep.tasks)} tasks, {len(sweep.render_keys)} physical configurations, "
+        f"on {where} -> {args.out}",
+        file=sys.stderr,
+    )
+    if args.scheduler:
+        try:
+            s = run_sweep(sweep, args.out, scheduler=args.scheduler, progress=not args.quiet)
+        except OSError as exc:
+            raise UserError(f"--scheduler {args.scheduler}: cannot connect ({exc})") from None
+    else:
+        s = run_sweep(sweep, args.out, workers=args.workers, progress=not args.quiet)
+    print(
+        f"sweep {sweep.name}: ran {s.ran} task(s), skipped {s.skipped} already done, {s.failed} failed; "
+        f"renders: {s.rendered} rendered, {s.reused} task(s) re-used a render; {s.seconds:.1f} s; "
+        + ("complete: results.parquet written" if s.complete else "INCOMPLETE"),
+        file=sys.stderr,
+    )
+    return 0 if s.complete else 1
+
+
+def _report(args: argparse.Namespace) -> int:
+    from nearlight.evaluation.report import write_report
+
+    folder = write_report(args.dir, out=args.out)
+    print(f"report written to {folder}", file=sys.stderr)
+    return 0
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from nearlight.evaluation.compare import compare_dirs
+
+    worse, lines = compare_dirs(
+        args.new, args.baseline, tolerance=args.tolerance, atol=args.atol, include_runtime=args.include_runtime
+    )
+    for line in lines:
+        print(line)
+    return 1 if worse else 0

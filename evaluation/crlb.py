@@ -1,0 +1,166 @@
+"""Cramér–Rao lower bounds: the best any unbiased estimator can do under Gaussian noise.
+
+For observations ``y = f(θ) + ε`` with independent Gaussian ``ε_i`` of
+variance ``v_i``, the Fisher information is ``F = Jᵀ diag(1/v) J`` with ``J``
+the Jacobian of ``f`` at the true ``θ``, and every unbiased estimator has
+covariance ``≥ F⁻¹``. :func:`crlb` computes that bound for any model by central
+differences; :func:`specular_crlb` applies it to a capture's specular lobe.
+
+The specular model (what the bound is about): parameters
+``θ = (lamp x, y, z [m], Ks r, g, b, σ [rad])``, observations the specular
+radiance ``Is`` of every surface pixel and channel, from
+:func:`nearlight.reflectance.specular_radiance` with the Torrance–Sparrow lobe
+and unit intensity (Ks absorbs the lamp's intensity, as estimators report it).
+Is is not observed directly but through the analyzer stack
+``y_k = c0 + c1 cos 2θ_k + c2 sin 2θ_k`` with the diffuse offset and the phase
+β free per pixel (nuisance parameters the estimators must also fit), so a stack
+of K images of per-image variance ``v`` determines Is with variance
+``4 v uᵀ C u`` (``C`` the (c1, c2) block of ``(AᵀA)⁻¹``, ``u = (cos 2β, sin 2β)``):
+``8 v / K`` for K equally spaced angles. The diffuse image is not used (its
+albedo is unknown), normals and positions are taken as exact, and range noise
+is not modelled: the bound covers camera noise only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from nearlight.reflectance import specular_radiance
+
+
+def jacobian(model: Callable[[np.ndarray], np.ndarray], theta: Any, *, steps: Any) -> np.ndarray:
+    """Central-difference Jacobian of ``model`` at ``theta``.
+
+    Parameters
+    ----------
+    model : callable
+        ``model(theta) -> ndarray`` of any shape (flattened to M observations).
+    theta : array_like, shape (P,)
+    steps : array_like, shape (P,)
+        Difference step per parameter, in the parameter's units.
+
+    Returns
+    -------
+    ndarray, shape (M, P)
+    """
+    theta = np.asarray(theta, dtype=float)
+    steps = np.broadcast_to(np.asarray(steps, dtype=float), theta.shape)
+    cols = []
+    for i, h in enumerate(steps):
+        d = np.zeros_like(theta)
+        d[i] = h
+        cols.append((np.ravel(model(theta + d)) - np.ravel(model(theta - d))) / (2.0 * h))
+    return np.stack(cols, axis=1)
+
+
+def crlb(model: Callable[[np.ndarray], np.ndarray], theta: Any, *, noise_var: Any, steps: Any) -> np.ndarray:
+    """Cramér–Rao bound on the covariance of ``theta`` for Gaussian noise.
+
+    Parameters
+    ----------
+    model, theta, steps
+        As :func:`jacobian`.
+    noise_var : float or ndarray, shape (M,) or model's output shape
+        Variance of each observation's noise, in the model's output units squared.
+
+    Returns
+    -------
+    ndarray, shape (P, P)
+        ``F⁻¹``; all-NaN when the Fisher matrix is singular (a parameter the
+        data does not determine).
+    """
+    J = jacobian(model, theta, steps=steps)
+    v = np.broadcast_to(np.ravel(np.asarray(noise_var, dtype=float)), (J.shape[0],))
+    if np.any(v <= 0):
+        raise ValueError("noise_var: every observation needs a positive noise variance")
+    fisher = J.T @ (J / v[:, None])
+    if not np.all(np.isfinite(fisher)) or np.linalg.cond(fisher) > 1e14:
+        return np.full_like(fisher, np.nan)
+    return np.linalg.inv(fisher)
+
+
+def specular_variance_factor(angles_deg: Any, beta: np.ndarray) -> np.ndarray:
+    """Variance of Is from an analyzer stack, per unit per-image variance.
+
+    Parameters
+    ----------
+    angles_deg : array_like, shape (K,)
+        Analyzer angles, degrees (K ≥ 3 distinct modulo 180°).
+    beta : ndarray, shape (...)
+        Phase β of each pixel, radians.
+
+    Returns
+    -------
+    ndarray, shape (...)
+        ``4 uᵀ C u``: multiply by the per-image noise variance ``v``. Equals
+        ``8 / K`` for K equally spaced angles.
+    """
+    t = 2.0 * np.radians(np.asarray(angles_deg, dtype=float))
+    A = np.stack([np.ones_like(t), np.cos(t), np.sin(t)], axis=1)
+    C = np.linalg.inv(A.T @ A)[1:, 1:]
+    u = np.stack([np.cos(2.0 * beta), np.sin(2.0 * beta)], axis=-1)
+    return 4.0 * np.einsum("...i,ij,...j->...", u, C, u)
+
+
+def stack_phase(stack: np.ndarray, angles_deg: Any) -> np.ndarray:
+    """Phase β (radians) of ``a + b cos 2θ + c sin 2θ`` fitted to a stack, shape ``(H, W, 3)``.
+
+    Parameters
+    ----------
+    stack : ndarray, shape (K, H, W, 3)
+    angles_deg : array_like, shape (K,)
+    """
+    t = 2.0 * np.radians(np.asarray(angles_deg, dtype=float))
+    A = np.stack([np.ones_like(t), np.cos(t), np.sin(t)], axis=1)
+    coef = np.tensordot(np.linalg.pinv(A), np.asarray(stack, dtype=float), axes=1)
+    return 0.5 * np.arctan2(coef[2], coef[1])
+
+
+def specular_crlb(capture: Any, *, noise_var: np.ndarray) -> dict[str, float]:
+    """CRLB of the lamp position and σ for a Torrance–Sparrow capture with an analyzer stack.
+
+    Parameters
+    ----------
+    capture : Capture
+        Noise-free capture with ``stack``, ``N`` and ``truth`` (model
+        ``torrance_sparrow``).
+    noise_var : ndarray, shape (K, H, W, 3) or (H, W, 3) or float
+        Variance of the camera noise of each analyzer image pixel, radiance
+        units squared (the noise model evaluated at the noise-free stack).
+
+    Returns
+    -------
+    dict
+        ``crlb_lamp_m``: ``sqrt(trace)`` of the lamp-position block, metres
+        (a lower bound on the RMS lamp position error);
+        ``crlb_sigma_rel``: the bound on σ's standard deviation divided by σ.
+    """
+    truth = capture.truth
+    bsdf = truth["bsdf"]
+    mask = capture.surface_mask & np.all(np.isfinite(capture.N), axis=-1)
+    P, N = np.asarray(capture.P, float)[mask], np.asarray(capture.N, float)[mask]
+    cam = np.asarray(capture.camera.position, float)
+    lamp = np.asarray(truth["lamp_position"], float)
+    ks = np.asarray(bsdf["ks"], float) * np.asarray(truth.get("lamp_intensity", 2.0), float) / 2.0
+    sigma = float(bsdf["sigma"])
+    nv = np.broadcast_to(np.asarray(noise_var, float), capture.stack.shape)
+    # Per-image variances of one pixel differ only through shot noise; their mean is what the fit sees.
+    v = nv.mean(axis=0)[mask]
+    beta = stack_phase(capture.stack, capture.analyzer_angles_deg)[mask]
+    var_is = v * specular_variance_factor(capture.analyzer_angles_deg, beta)
+
+    def model(theta: np.ndarray) -> np.ndarray:
+        b = {"model": "torrance_sparrow", "ks": theta[3:6], "sigma": theta[6]}
+        return specular_radiance(P, N, cam, theta[:3], 1.0, b)
+
+    theta = np.concatenate([lamp, ks, [sigma]])
+    scale = float(np.linalg.norm(lamp - P.mean(axis=0)))
+    steps = np.concatenate([np.full(3, 1e-6 * scale), 1e-6 * np.maximum(ks, 1e-12), [1e-6 * sigma]])
+    cov = crlb(model, theta, noise_var=var_is, steps=steps)
+    return {
+        "crlb_lamp_m": float(np.sqrt(np.trace(cov[:3, :3]))),
+        "crlb_sigma_rel": float(np.sqrt(cov[6, 6]) / sigma),
+    }

@@ -1,0 +1,250 @@
+"""The sweep engine: render each physical configuration once, run every task, keep every row.
+
+Two phases. First each distinct physical configuration not yet in the render
+cache is rendered once (renderers that cache on disk only). Then every task
+not yet done runs (its render is a cache hit) and its row is written the moment
+it comes back. Work goes to local worker processes (``workers`` > 1), to the
+calling process (``workers`` = 1), or to a Dask distributed cluster
+(``scheduler``): the same function computes the same row everywhere. With a
+remote cluster the output folder must be on a file system the workers share
+(the render cache lives there).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import dataclasses
+import functools
+import multiprocessing
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+from nearlight.evaluation.store import ResultStore
+from nearlight.evaluation.sweep import Sweep, Task
+from nearlight.evaluation.tasks import run_task
+
+
+@dataclasses.dataclass
+class RunSummary:
+    """What a run did. Attributes: tasks in the sweep, tasks run now, tasks skipped as
+    already done, renders made, tasks that re-used a render, failed tasks, wall seconds,
+    and whether the sweep is now complete."""
+
+    tasks: int
+    ran: int
+    skipped: int
+    rendered: int
+    reused: int
+    failed: int
+    seconds: float
+    complete: bool
+
+
+@functools.lru_cache(maxsize=1)
+def code_version() -> str:
+    """``<package version>+g<commit>[.dirty]`` of the running nearlight (commit when in a git checkout)."""
+    from nearlight import __version__
+
+    here = Path(__file__).resolve().parent
+    try:
+        commit = subprocess.run(
+            ["git", "-C", str(here), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit = ""
+    return f"{__version__}+g{commit}" if commit else __version__
+
+
+def task_payload(task: Task, sweep: Sweep) -> dict[str, Any]:
+    """The plain-data form of a task that workers receive."""
+    return {
+        "task_id": task.task_id,
+        "index": task.index,
+        "scene": task.scene,
+        "noise": task.noise,
+        "range_noise": task.range_noise,
+        "seed": task.seed,
+        "method_spec": task.method.method,
+        "options": task.method.options,
+        "crlb": sweep.crlb,
+    }
+
+
+def task_row(task: Task, result: dict[str, Any], *, sweep: Sweep, version: str) -> dict[str, Any]:
+    """One tidy row: identity and config columns first, then the task's result."""
+    row: dict[str, Any] = {"task_id": task.task_id, "task_index": task.index, "sweep": sweep.name}
+    row.update(task.config)
+    row.update(
+        {
+            "seed": task.seed,
+            "method": task.method.label,
+            "render_key": task.render_key,
+            "renderer": sweep.renderer.name,
+            "code_version": version,
+        }
+    )
+    row.update(result)
+    return row
+
+
+class _Deferred:
+    """A call run when its result is first asked for."""
+
+    def __init__(self, fn: Callable, args: tuple, kw: dict):
+        self.call = functools.partial(fn, *args, **kw)
+
+    def result(self) -> Any:
+        return self.call()
+
+
+class _Inline:
+    """Runs each call in this process (workers = 1), one at a time as results are collected."""
+
+    def submit(self, fn: Callable, *args: Any, **kw: Any) -> _Deferred:
+        return _Deferred(fn, args, kw)
+
+    def as_completed(self, futures: list) -> Iterator:
+        return iter(futures)
+
+    def close(self) -> None:
+        pass
+
+
+class _Local:
+    """Local worker processes (spawned: Mitsuba and Dr.Jit threads do not survive fork)."""
+
+    def __init__(self, workers: int):
+        self.pool = cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+
+    def submit(self, fn: Callable, *args: Any, **kw: Any) -> cf.Future:
+        return self.pool.submit(fn, *args, **kw)
+
+    def as_completed(self, futures: list) -> Iterator:
+        return cf.as_completed(futures)
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=True, cancel_futures=True)
+
+
+class _Dask:
+    """A Dask distributed cluster at ``scheduler`` (an address or a Client/LocalCluster)."""
+
+    def __init__(self, scheduler: Any):
+        from distributed import Client
+
+        self.own = not isinstance(scheduler, Client)
+        self.client = Client(scheduler) if self.own else scheduler
+
+    def submit(self, fn: Callable, *args: Any, **kw: Any) -> Any:
+        return self.client.submit(fn, *args, pure=False, **kw)
+
+    def as_completed(self, futures: list) -> Iterator:
+        from distributed import as_completed
+
+        return as_completed(futures)
+
+    def close(self) -> None:
+        if self.own:
+            self.client.close()
+
+
+def _executor(workers: int, scheduler: Any) -> Any:
+    if scheduler is not None:
+        return _Dask(scheduler)
+    return _Inline() if workers <= 1 else _Local(workers)
+
+
+def _result(fut: Any) -> Any:
+    return fut.result()
+
+
+def run_sweep(
+    sweep: Sweep,
+    out: str | Path,
+    *,
+    workers: int = 1,
+    scheduler: Any = None,
+    progress: bool = True,
+) -> RunSummary:
+    """Run (or resume) ``sweep`` into ``out``.
+
+    Parameters
+    ----------
+    sweep : Sweep
+    out : path-like
+        Results folder; finished tasks found there are not run again.
+    workers : int, optional
+        Local worker processes; 1 runs in this process.
+    scheduler : str or distributed.Client, optional
+        Dask scheduler address (``tcp://HOST:PORT``) or a client: run there instead.
+    progress : bool, optional
+        tqdm progress bars with ETA on stderr.
+
+    Returns
+    -------
+    RunSummary
+    """
+    from tqdm import tqdm
+
+    t_start = time.perf_counter()
+    store = ResultStore(out, name=sweep.name, sweep_hash=sweep.sweep_hash, n_tasks=len(sweep.tasks), axes=list(sweep.axes))
+    done = store.done_ids()
+    todo = [t for t in sweep.tasks if t.task_id not in done]
+    version = code_version()
+    cache_dir = str(store.cache_dir)
+    renderer = sweep.renderer
+    executor = _executor(workers, scheduler)
+    rendered = failed = 0
+    render_errors: dict[str, str] = {}
+    try:
+        keys = list(dict.fromkeys(t.render_key for t in todo)) if renderer.prerender else []
+        if keys:
+            scenes = {t.render_key: t.scene for t in todo}
+            futs = {executor.submit(renderer.prepare, scenes[k], cache_dir=Path(cache_dir)): k for k in keys}
+            bar = tqdm(total=len(keys), desc=f"{sweep.name}: renders", unit="render", disable=not progress, file=sys.stderr)
+            for fut in executor.as_completed(list(futs)):
+                try:
+                    rendered += bool(_result(fut))
+                except Exception as exc:  # the tasks of this configuration become error rows
+                    render_errors[futs[fut]] = f"render: {type(exc).__name__}: {' '.join(str(exc).split())}"
+                bar.update()
+            bar.close()
+
+        bar = tqdm(
+            total=len(sweep.tasks), initial=len(sweep.tasks) - len(todo), desc=f"{sweep.name}: tasks",
+            unit="task", disable=not progress, file=sys.stderr,
+        )
+        futs = {}
+        for t in todo:
+            if t.render_key in render_errors:
+                row = task_row(t, {"status": "error", "error": render_errors[t.render_key]}, sweep=sweep, version=version)
+                store.write_row(row)
+                failed += 1
+                bar.update()
+                continue
+            futs[executor.submit(run_task, task_payload(t, sweep), renderer=renderer, cache_dir=cache_dir)] = t
+        for fut in executor.as_completed(list(futs)):
+            t = futs[fut]
+            row = task_row(t, _result(fut), sweep=sweep, version=version)
+            store.write_row(row)
+            failed += row["status"] != "ok"
+            bar.update()
+        bar.close()
+    finally:
+        executor.close()
+    complete = store.consolidate() is not None
+    ran = len(todo)
+    return RunSummary(
+        tasks=len(sweep.tasks),
+        ran=ran,
+        skipped=len(sweep.tasks) - ran,
+        rendered=rendered,
+        reused=ran - rendered if renderer.prerender else 0,
+        failed=failed,
+        seconds=time.perf_counter() - t_start,
+        complete=complete,
+    )

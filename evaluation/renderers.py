@@ -1,0 +1,262 @@
+"""Renderers a sweep can use: the Mitsuba generator, or closed-form analytic captures.
+
+A renderer knows its scene format (a nested dict), where the keys each sweep
+axis changes live in it, how to check a scene, and how to render one. The
+``mitsuba`` renderer is the generator (scene files of ``scenes/``, renders
+cached on disk by hash); the ``analytic`` renderer calls
+:func:`nearlight.synthetic.analytic_capture` (numpy only, a board or a sphere,
+``ideal`` polarization): milliseconds per capture, for estimator studies and
+for testing the evaluation itself.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import inspect
+import json
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from nearlight.errors import UserError
+
+
+def set_dotted(doc: dict, key: str, value: Any, *, where: str) -> None:
+    """Set ``doc["a"]["b"] = value`` for ``key = "a.b"``, creating mappings on the way."""
+    parts = key.split(".")
+    node = doc
+    for part in parts[:-1]:
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise UserError(f"{where}: {part!r} is not a mapping, cannot set {key!r}")
+        node = child
+    node[parts[-1]] = value
+
+
+def get_dotted(doc: Mapping, key: str, default: Any = None) -> Any:
+    """``doc["a"]["b"]`` for ``key = "a.b"``, or ``default``."""
+    node: Any = doc
+    for part in key.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return default
+        node = node[part]
+    return node
+
+
+def convert_material(material: dict, model: str) -> dict:
+    """Switch a Torrance–Sparrow material to Ward or back, keeping the lobe's width and peak.
+
+    ``alpha = sqrt(2)·sigma`` (``exp(-tan²α/α²) ≈ exp(-α²/2σ²)`` for small α)
+    and ``rho_s = 4π alpha² ks`` (equal peak radiance at normal incidence);
+    other keys (kd, polarization, eta) are kept.
+    """
+    old = material.get("model", "torrance_sparrow")
+    out = dict(material, model=model)
+    if old == model:
+        return out
+    if (old, model) == ("torrance_sparrow", "ward"):
+        sigma, ks = float(out.pop("sigma")), np.asarray(out.pop("ks"), dtype=float)
+        out["alpha"] = math.sqrt(2.0) * sigma
+        out["rho_s"] = (4.0 * math.pi * out["alpha"] ** 2 * ks).tolist()
+    elif (old, model) == ("ward", "torrance_sparrow"):
+        alpha, rho = float(out.pop("alpha")), np.asarray(out.pop("rho_s"), dtype=float)
+        out["sigma"] = alpha / math.sqrt(2.0)
+        out["ks"] = (rho / (4.0 * math.pi * alpha**2)).tolist()
+    else:
+        raise UserError(f"cannot convert material model {old!r} to {model!r}: give the material as a mapping")
+    return out
+
+
+class Renderer:
+    """Scene format and rendering of one renderer (subclasses fill the key names)."""
+
+    name = ""
+    lamp_key = ""
+    object_key = ""
+    material_key = ""
+    angles_key = ""
+    polarization_key: str | None = None
+    #: Renders are slow and cached on disk: render each physical configuration once up front.
+    prerender = False
+
+    def load_base(self, scene: str | dict, *, base_dir: Path, where: str) -> dict:
+        """The base scene as a dict: a mapping as given, or a YAML file relative to ``base_dir``."""
+        if isinstance(scene, dict):
+            return copy.deepcopy(scene)
+        path = Path(scene) if Path(scene).is_absolute() else base_dir / scene
+        if not path.is_file():
+            raise UserError(f"{where}: no such scene file {str(path)!r}")
+        try:
+            doc = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as exc:
+            raise UserError(f"{path}: not valid YAML: {getattr(exc, 'problem', exc)}") from None
+        if not isinstance(doc, dict):
+            raise UserError(f"{path}: expected a mapping of scene sections")
+        return doc
+
+    def object_centre(self, scene: dict) -> np.ndarray:
+        """Centre of the object, metres (the origin of the lamp-distance ray)."""
+        raise NotImplementedError
+
+    def apply_axis(self, scene: dict, name: str, value: Any, *, where: str) -> None:
+        """Change ``scene`` in place for one physical axis value."""
+        if name == "object":
+            if isinstance(value, dict):
+                base = get_dotted(scene, self.object_key.rpartition(".")[0] or self.object_key) or {}
+                set_dotted(scene, self.object_key.rpartition(".")[0], {**base, **value}, where=where)
+            else:
+                set_dotted(scene, self.object_key, value, where=where)
+        elif name == "bsdf":
+            material = dict(get_dotted(scene, self.material_key) or {})
+            if isinstance(value, dict):
+                keep = {k: v for k, v in material.items() if k in ("kd", "polarization", "eta")}
+                material = {**keep, **value}
+            else:
+                try:
+                    material = convert_material(material, value)
+                except UserError as exc:
+                    raise UserError(f"{where}: {exc}") from None
+            set_dotted(scene, self.material_key, material, where=where)
+        elif name == "polarization":
+            if self.polarization_key is None:
+                if value != "ideal":
+                    raise UserError(f"{where}: the {self.name} renderer supports only 'ideal' polarization")
+                return
+            set_dotted(scene, self.polarization_key, value, where=where)
+        elif name == "roughness":
+            model = get_dotted(scene, f"{self.material_key}.model", "torrance_sparrow")
+            if model == "torrance_sparrow":
+                set_dotted(scene, f"{self.material_key}.sigma", float(value), where=where)
+            elif model == "ward":
+                set_dotted(scene, f"{self.material_key}.alpha", math.sqrt(2.0) * float(value), where=where)
+            else:
+                raise UserError(f"{where}: material model {model!r} has no roughness key; use a dotted scene key")
+        elif name == "analyzer_angles":
+            angles = [180.0 * k / value for k in range(value)] if isinstance(value, int) else list(value)
+            set_dotted(scene, self.angles_key, angles, where=where)
+        elif name == "lamp_distance":
+            centre = self.object_centre(scene)
+            lamp = np.asarray(get_dotted(scene, self.lamp_key), dtype=float)
+            ray = lamp - centre
+            norm = float(np.linalg.norm(ray))
+            if not norm > 0:
+                raise UserError(f"{where}: the lamp sits at the object centre: no ray to move it along")
+            set_dotted(scene, self.lamp_key, (centre + float(value) * ray / norm).tolist(), where=where)
+        else:  # pragma: no cover - sweep.AXES lists only the names above
+            raise ValueError(name)
+
+    def validate(self, scene: dict, *, where: str) -> None:
+        """Raise UserError unless ``scene`` is a valid scene for this renderer."""
+        raise NotImplementedError
+
+    def render_key(self, scene: dict) -> str:
+        """Hash of what the render depends on."""
+        return hashlib.sha256(json.dumps([self.name, scene], sort_keys=True).encode()).hexdigest()[:16]
+
+    def prepare(self, scene: dict, *, cache_dir: Path | None) -> bool:
+        """Render ``scene`` into the cache if it is not there; True if it rendered."""
+        return False
+
+    def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
+        """The noise-free capture of ``scene``."""
+        raise NotImplementedError
+
+
+class AnalyticRenderer(Renderer):
+    """Closed-form captures: scenes are keyword arguments of ``analytic_capture``."""
+
+    name = "analytic"
+    lamp_key = "lamp_position"
+    object_key = "shape"
+    material_key = "bsdf"
+    angles_key = "analyzer_angles_deg"
+
+    def load_base(self, scene: str | dict, *, base_dir: Path, where: str) -> dict:
+        """The base scene with every ``analytic_capture`` default filled in (so axes can change any of them)."""
+        from nearlight.synthetic import DEFAULT_BSDF
+
+        doc = super().load_base(scene, base_dir=base_dir, where=where)
+        self.validate(doc, where=where)
+        full = {k: p.default for k, p in self._params().items()}
+        full["bsdf"] = dict(DEFAULT_BSDF)
+        full.update(doc)
+        return json.loads(json.dumps(full, default=list))
+
+    def apply_axis(self, scene: dict, name: str, value: Any, *, where: str) -> None:
+        if name == "object" and isinstance(value, dict):
+            scene.update(value)
+            return
+        super().apply_axis(scene, name, value, where=where)
+
+    def _params(self) -> dict[str, inspect.Parameter]:
+        from nearlight.synthetic import analytic_capture
+
+        return dict(inspect.signature(analytic_capture).parameters)
+
+    def object_centre(self, scene: dict) -> np.ndarray:
+        key = "sphere_centre" if scene["shape"] == "sphere" else "board_centre"
+        return np.asarray(scene[key], dtype=float)
+
+    def validate(self, scene: dict, *, where: str) -> None:
+        params = self._params()
+        for key in scene:
+            if key not in params:
+                raise UserError(f"{where}: {key}: not an analytic_capture argument (expected one of {', '.join(params)})")
+        if scene.get("shape", "board") not in ("board", "sphere"):
+            raise UserError(f"{where}: shape: expected 'board' or 'sphere', got {scene['shape']!r}")
+        bsdf = scene.get("bsdf")
+        if bsdf is not None and bsdf.get("model") not in ("torrance_sparrow", "ward"):
+            raise UserError(f"{where}: bsdf.model: expected 'torrance_sparrow' or 'ward', got {bsdf.get('model')!r}")
+
+    def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
+        from nearlight.synthetic import analytic_capture
+
+        return analytic_capture(**copy.deepcopy(scene))
+
+
+class MitsubaRenderer(Renderer):
+    """The generator: scene files of ``scenes/``, Mitsuba 3 renders cached by hash."""
+
+    name = "mitsuba"
+    lamp_key = "lamp.position"
+    object_key = "object.shape"
+    material_key = "material"
+    angles_key = "capture.analyzer_angles_deg"
+    polarization_key = "material.polarization"
+    prerender = True
+
+    def _scene(self, scene: dict) -> Any:
+        from nearlight.generator import load_scene
+
+        return load_scene(copy.deepcopy(scene))
+
+    def object_centre(self, scene: dict) -> np.ndarray:
+        return np.asarray(get_dotted(scene, "object.position", [0.0, 0.0, 0.0]), dtype=float)
+
+    def validate(self, scene: dict, *, where: str) -> None:
+        try:
+            self._scene(scene)
+        except UserError as exc:
+            raise UserError(f"{where}: {exc}") from None
+
+    def prepare(self, scene: dict, *, cache_dir: Path | None) -> bool:
+        from nearlight.generator import render_clean
+
+        before = set(cache_dir.iterdir()) if cache_dir is not None and cache_dir.is_dir() else set()
+        render_clean(self._scene(scene), cache_dir=cache_dir, progress=False)
+        after = set(cache_dir.iterdir()) if cache_dir is not None and cache_dir.is_dir() else set()
+        return after != before
+
+    def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
+        from nearlight.generator import render_clean
+
+        return render_clean(self._scene(scene), cache_dir=cache_dir, progress=False)
+
+
+#: Renderers by the sweep file's ``renderer`` key.
+RENDERERS: dict[str, type[Renderer]] = {"analytic": AnalyticRenderer, "mitsuba": MitsubaRenderer}

@@ -1,0 +1,169 @@
+"""Tables and plots of a sweep's results: ``nearlight report DIR``.
+
+Writes into ``DIR/report/``:
+
+- ``summary.md``: every table below in Markdown, with the plots linked;
+- ``overall.csv``: per method, n, failures, mean / median / 90th percentile of every metric;
+- ``by_axis.csv``: the same per axis value and method (long form: axis, value, method, metric, stats);
+- ``crlb.csv``: per configuration and method, the RMSE over seeds of the lamp position and σ
+  beside their Cramér–Rao bounds and the ratio RMSE / bound (≥ 1 for an unbiased estimator);
+- ``error_vs_<axis>.png``: median error (line) and 90th percentile (band) against each
+  axis with several values, one line per method.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from nearlight.evaluation.store import MANIFEST, read_results
+from nearlight.evaluation.tasks import METRICS
+
+#: Metrics shown in the Markdown tables and plots (all are in the CSV files).
+HEADLINE = ("lamp_position_error_pct", "direction_error_deg", "distance_error_m", "sigma_rel_error", "ks_rel_error",
+            "specular_rmse_rel", "runtime_s")
+PLOTTED = ("lamp_position_error_pct", "direction_error_deg", "sigma_rel_error")
+
+
+def p90(x: pd.Series) -> float:
+    """90th percentile ignoring NaN (NaN when empty)."""
+    x = x.dropna()
+    return float(np.percentile(x, 90)) if len(x) else float("nan")
+
+
+def stats(df: pd.DataFrame, by: list[str]) -> pd.DataFrame:
+    """Mean, median and 90th percentile of every metric of the successful rows, grouped by ``by``.
+
+    Returns a long table: ``by`` columns, ``metric``, ``n``, ``mean``, ``median``, ``p90``.
+    """
+    ok = df[df["status"] == "ok"]
+    cols = [m for m in METRICS if m in ok]
+    long = ok.melt(id_vars=by, value_vars=cols, var_name="metric").dropna(subset=["value"])
+    out = long.groupby([*by, "metric"], sort=False)["value"].agg(n="count", mean="mean", median="median", p90=p90)
+    return out.reset_index()
+
+
+def crlb_table(df: pd.DataFrame, axes: list[str]) -> pd.DataFrame:
+    """RMSE over seeds beside the Cramér–Rao bound, per configuration and method.
+
+    Columns: the axes, ``method``, ``n``, ``rmse_lamp_m``, ``crlb_lamp_m``,
+    ``ratio_lamp``, ``rmse_sigma_rel``, ``crlb_sigma_rel``, ``ratio_sigma``.
+    """
+    ok = df[(df["status"] == "ok") & np.isfinite(df.get("crlb_lamp_m", pd.Series(dtype=float)))]
+    if ok.empty:
+        return pd.DataFrame()
+    g = ok.assign(l2=ok["lamp_position_error_m"] ** 2, s2=ok["sigma_rel_error"] ** 2).groupby(
+        [*axes, "method"], sort=False, dropna=False
+    )
+    t = g.agg(n=("l2", "size"), ms_l=("l2", "mean"), crlb_lamp_m=("crlb_lamp_m", "mean"), ms_s=("s2", "mean"),
+              crlb_sigma_rel=("crlb_sigma_rel", "mean")).reset_index()
+    t["rmse_lamp_m"] = np.sqrt(t.pop("ms_l"))
+    t["rmse_sigma_rel"] = np.sqrt(t.pop("ms_s"))
+    t["ratio_lamp"] = t["rmse_lamp_m"] / t["crlb_lamp_m"]
+    t["ratio_sigma"] = t["rmse_sigma_rel"] / t["crlb_sigma_rel"]
+    return t[[*axes, "method", "n", "rmse_lamp_m", "crlb_lamp_m", "ratio_lamp", "rmse_sigma_rel", "crlb_sigma_rel",
+              "ratio_sigma"]]
+
+
+def _md(df: pd.DataFrame, *, floatfmt: str = ".4g") -> str:
+    cols = [str(c) for c in df.columns]
+    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
+    for row in df.itertuples(index=False):
+        cells = [format(v, floatfmt) if isinstance(v, (float, np.floating)) else str(v) for v in row]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _wide(st: pd.DataFrame, index: list[str]) -> pd.DataFrame:
+    """Headline metrics as ``median (p90)`` cells, one column per metric."""
+    st = st[st["metric"].isin(HEADLINE)]
+    cell = st.assign(cell=[f"{m:.3g} ({p:.3g})" for m, p in zip(st["median"], st["p90"])])
+    wide = cell.pivot_table(index=index, columns="metric", values="cell", aggfunc="first", sort=False)
+    return wide[[m for m in HEADLINE if m in wide.columns]].reset_index()
+
+
+def plot_axis(df: pd.DataFrame, axis: str, path: Path) -> None:
+    """PNG: median (line) and 90th percentile (band) of :data:`PLOTTED` against ``axis``, one line per method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = df[df["status"] == "ok"]
+    values = list(dict.fromkeys(df[axis]))
+    numeric = all(isinstance(v, (int, float, np.number)) for v in values)
+    if numeric:
+        values = sorted(values)
+    x = np.asarray(values, dtype=float) if numeric else np.arange(len(values))
+    fig, axs = plt.subplots(1, len(PLOTTED), figsize=(4.2 * len(PLOTTED), 3.4), constrained_layout=True)
+    for ax, metric in zip(axs, PLOTTED):
+        for method, grp in ok.groupby("method", sort=False):
+            g = grp.groupby(axis)[metric]
+            med = np.array([g.median().get(v, np.nan) for v in values], dtype=float)
+            hi = np.array([p90(g.get_group(v)) if v in g.groups else np.nan for v in values], dtype=float)
+            (line,) = ax.plot(x, med, "o-", label=str(method))
+            ax.fill_between(x, med, hi, color=line.get_color(), alpha=0.15, linewidth=0)
+        ax.set_xlabel(axis)
+        ax.set_ylabel(f"{metric} [{METRICS[metric]}]")
+        if not numeric:
+            ax.set_xticks(x, [str(v) for v in values], rotation=20)
+        finite = ok[metric].replace(0, np.nan).dropna()
+        if len(finite) and finite.max() / max(finite.min(), 1e-300) > 100:
+            ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+    axs[0].legend(fontsize=8)
+    fig.suptitle(f"error vs {axis}: median (line), 90th percentile (band)")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_report(results_dir: str | os.PathLike, *, out: str | os.PathLike | None = None) -> Path:
+    """Write the tables and plots of a sweep folder; returns the report folder."""
+    results_dir = Path(results_dir)
+    df, complete = read_results(results_dir)
+    folder = Path(out) if out is not None else results_dir / "report"
+    folder.mkdir(parents=True, exist_ok=True)
+    manifest = results_dir / MANIFEST
+    info = json.loads(manifest.read_text()) if manifest.is_file() else {}
+    axes = [a for a in info.get("axes", []) if a in df.columns]
+    varied = [a for a in axes if df[a].nunique() > 1]
+
+    overall = stats(df, ["method"])
+    overall.to_csv(folder / "overall.csv", index=False)
+    frames = [stats(df, [a, "method"]).rename(columns={a: "value"}).assign(axis=a) for a in varied]
+    by_axis = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+    if not by_axis.empty:
+        by_axis["value"] = by_axis["value"].astype(str)
+        by_axis = by_axis[["axis", "value", "method", "metric", "n", "mean", "median", "p90"]]
+    by_axis.to_csv(folder / "by_axis.csv", index=False)
+    bound = crlb_table(df, axes)
+    bound.to_csv(folder / "crlb.csv", index=False)
+
+    counts = df.groupby("method", sort=False)["status"].agg(tasks="size", failed=lambda s: int((s != "ok").sum()))
+    md = [f"# Sweep report: {info.get('name', results_dir.name)}", ""]
+    if not complete:
+        md += [f"**Incomplete sweep: {len(df)} of {info.get('tasks', '?')} tasks have rows.**", ""]
+    md += [f"{len(df)} tasks; code version(s): {', '.join(sorted(df['code_version'].astype(str).unique()))}.",
+           "Cells: median (90th percentile) over successful tasks. Units: "
+           + "; ".join(f"{m} [{METRICS[m]}]" for m in HEADLINE) + ".", "",
+           "## Overall", "", _md(counts.reset_index()), "", _md(_wide(overall, ["method"])), ""]
+    for a in varied:
+        st = stats(df, [a, "method"])
+        md += [f"## By {a}", "", _md(_wide(st, [a, "method"])), ""]
+        png = f"error_vs_{a.replace('.', '_')}.png"
+        plot_axis(df, a, folder / png)
+        md += [f"![error vs {a}]({png})", ""]
+    if not bound.empty:
+        md += ["## Cramér–Rao bounds (Gaussian camera noise)", "",
+               "RMSE over seeds of each method beside the bound for the same configuration; ratio = RMSE / bound "
+               "(1 is the best an unbiased estimator can do). Lamp: metres; sigma: relative.", "",
+               _md(bound), ""]
+    failed = df[df["status"] != "ok"]
+    if len(failed):
+        md += ["## Failed tasks", "", _md(failed[["task_index", "method", "error"]].head(50)), ""]
+    (folder / "summary.md").write_text("\n".join(md))
+    return folder

@@ -1,0 +1,313 @@
+"""Sweep files: a base scene, axes with values, seeds and methods, expanded into tasks.
+
+A sweep file (YAML) is validated with pydantic; every mistake is one
+:class:`~nearlight.errors.UserError` line naming the file and key. The product
+of the axes' values × seeds × methods is the task list, in a fixed order; each
+task has a stable id (a hash of what it is), so a re-run finds the tasks already
+done. Axes that change what is rendered make *physical configurations*; the
+others (``noise``, ``range_noise``, the seed, the method) are applied after
+rendering and share the render.
+
+See the README section "Sweep files" for the keys; :data:`AXES` documents each axis.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import hashlib
+import itertools
+import json
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from nearlight.errors import UserError
+from nearlight.evaluation.renderers import RENDERERS, Renderer, set_dotted
+
+#: Built-in axes: name -> (applied after rendering?, meaning).
+AXES: dict[str, tuple[bool, str]] = {
+    "object": (False, "object shape name (or a mapping merged into the object section)"),
+    "bsdf": (False, "specular model: torrance_sparrow | ward (converted from the base material) | a material mapping"),
+    "polarization": (False, "specular polarization mode: ideal | fresnel"),
+    "roughness": (False, "Torrance-Sparrow sigma, rad; for ward sets alpha = sqrt(2)*roughness (same lobe width)"),
+    "analyzer_angles": (False, "number K of analyzer angles, equally spaced over 180 deg (or an explicit list)"),
+    "lamp_distance": (False, "lamp distance from the object centre, m, moving the lamp along that ray"),
+    "noise": (True, "camera noise settings passed to the generator's add_camera_noise (null: none)"),
+    "range_noise": (True, "Gaussian noise on the range image P, standard deviation in m (0: none)"),
+}
+#: Order in which physical axes are applied (bsdf before roughness, lamp distance last).
+_APPLY_ORDER = ("object", "bsdf", "polarization", "roughness", "analyzer_angles")
+
+
+class _Method(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    method: str
+    name: str | None = None
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+class _SweepFile(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    name: str
+    description: str = ""
+    renderer: Literal["mitsuba", "analytic"] = "mitsuba"
+    scene: str | dict[str, Any]
+    set: dict[str, Any] = Field(default_factory=dict)
+    axes: dict[str, list[Any] | dict[str, Any]] = Field(default_factory=dict)
+    seeds: int | list[int] = 1
+    methods: list[str | _Method] = Field(min_length=1)
+    crlb: bool = True
+
+    @field_validator("seeds")
+    @classmethod
+    def _seeds(cls, v: int | list[int]) -> int | list[int]:
+        if isinstance(v, int) and v < 1:
+            raise ValueError("expected a positive count or a list of integers")
+        if isinstance(v, list) and (not v or len(set(v)) != len(v)):
+            raise ValueError("expected a non-empty list of distinct integers")
+        return v
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """One estimator run: a label for the tables, the method spec, its options."""
+
+    label: str
+    method: str
+    options: dict[str, Any]
+
+
+@dataclasses.dataclass(frozen=True)
+class Task:
+    """One (configuration, seed, method): a row of the results.
+
+    Attributes
+    ----------
+    index : int
+        Position in the sweep's task order.
+    task_id : str
+        Stable hash of ``config``, ``seed`` and ``method``.
+    config : dict
+        Axis name -> table value (number or label), in axis order.
+    scene : dict
+        The full scene to render (renderer's format).
+    render_key : str
+        Hash of ``scene``: tasks with the same key share one render.
+    noise : Any
+        Camera noise settings, or None.
+    range_noise : float
+        Range-image noise standard deviation, metres.
+    seed : int
+    method : Method
+    """
+
+    index: int
+    task_id: str
+    config: dict[str, Any]
+    scene: dict[str, Any]
+    render_key: str
+    noise: Any
+    range_noise: float
+    seed: int
+    method: Method
+
+
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    """A validated sweep: its name, renderer, tasks and a hash of them."""
+
+    name: str
+    source: str
+    renderer: Renderer
+    axes: dict[str, list[tuple[Any, Any]]]
+    seeds: list[int]
+    methods: list[Method]
+    tasks: list[Task]
+    crlb: bool
+
+    @property
+    def sweep_hash(self) -> str:
+        """Hash of the task list: results of one sweep never mix with another's."""
+        return _hash([t.task_id for t in self.tasks])
+
+    @property
+    def render_keys(self) -> list[str]:
+        """Distinct physical configurations, in task order."""
+        return list(dict.fromkeys(t.render_key for t in self.tasks))
+
+
+def _hash(obj: Any) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _where(path: str, loc: tuple[Any, ...]) -> str:
+    return f"{path}: " + (".".join(str(x) for x in loc) or "<top>")
+
+
+def load_sweep(source: str | Path | Mapping[str, Any], *, check_methods: bool = True) -> Sweep:
+    """Read, validate and expand a sweep file.
+
+    Parameters
+    ----------
+    source : path-like or mapping
+        A YAML sweep file, or its content as a dict (then relative scene paths
+        are resolved from the current directory).
+    check_methods : bool, optional
+        Resolve every method now (unknown built-ins and ``module:function``
+        that cannot be imported are errors before anything runs).
+
+    Returns
+    -------
+    Sweep
+
+    Raises
+    ------
+    UserError
+        One line naming the file and key.
+    """
+    if isinstance(source, Mapping):
+        path, base_dir, doc = "<sweep>", Path.cwd(), dict(source)
+    else:
+        p = Path(source)
+        path, base_dir = str(p), p.parent
+        if not p.is_file():
+            raise UserError(f"{p}: no such sweep file")
+        try:
+            doc = yaml.safe_load(p.read_text())
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            where = f" (line {mark.line + 1})" if mark else ""
+            raise UserError(f"{p}: not valid YAML{where}: {getattr(exc, 'problem', exc)}") from None
+        if not isinstance(doc, dict):
+            raise UserError(f"{p}: expected a mapping of sweep keys (name, scene, axes, seeds, methods)")
+    try:
+        spec = _SweepFile.model_validate(doc)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        raise UserError(f"{_where(path, err['loc'])}: {err['msg']}") from None
+
+    renderer = RENDERERS[spec.renderer]()
+    base = renderer.load_base(spec.scene, base_dir=base_dir, where=f"{path}: scene")
+    for key, value in spec.set.items():
+        set_dotted(base, key, value, where=f"{path}: set.{key}")
+
+    axes = {name: _axis_values(path, name, values) for name, values in spec.axes.items()}
+    for name, values in axes.items():
+        if name not in AXES and "." not in name:
+            raise UserError(
+                f"{path}: axes.{name}: unknown axis (expected one of {', '.join(AXES)} or a dotted scene key)"
+            )
+        for label, value in values:
+            _check_axis_value(path, name, label, value)
+
+    methods = [_method(path, i, m, check_methods) for i, m in enumerate(spec.methods)]
+    labels = [m.label for m in methods]
+    if len(set(labels)) != len(labels):
+        raise UserError(f"{path}: methods: duplicate method name {next(x for x in labels if labels.count(x) > 1)!r}")
+    seeds = list(range(spec.seeds)) if isinstance(spec.seeds, int) else list(spec.seeds)
+
+    tasks: list[Task] = []
+    scenes: dict[tuple, tuple[dict, str]] = {}
+    names = list(axes)
+    for combo in itertools.product(*(axes[n] for n in names)):
+        chosen = dict(zip(names, combo))
+        phys = tuple((n, _hash(v[1])) for n, v in chosen.items() if not AXES.get(n, (False,))[0])
+        if phys not in scenes:
+            scene = _physical_scene(renderer, base, chosen, path)
+            scenes[phys] = (scene, renderer.render_key(scene))
+        scene, key = scenes[phys]
+        config = {n: _column_value(label) for n, (label, _) in chosen.items()}
+        noise = chosen["noise"][1] if "noise" in chosen else None
+        range_noise = float(chosen["range_noise"][1]) if "range_noise" in chosen else 0.0
+        for seed in seeds:
+            for m in methods:
+                tid = _hash([spec.renderer, scene, noise, range_noise, seed, m.label, m.method, m.options])
+                tasks.append(Task(len(tasks), tid, config, scene, key, noise, range_noise, seed, m))
+    return Sweep(spec.name, path, renderer, axes, seeds, methods, tasks, spec.crlb)
+
+
+def _axis_values(path: str, name: str, values: list[Any] | dict[str, Any]) -> list[tuple[Any, Any]]:
+    """``[(label, value)]``: a list's items label themselves; a mapping's keys are labels."""
+    items = list(values.items()) if isinstance(values, dict) else [(_label(v), v) for v in values]
+    if not items:
+        raise UserError(f"{path}: axes.{name}: expected at least one value")
+    labels = [str(lab) for lab, _ in items]
+    if len(set(labels)) != len(labels):
+        raise UserError(f"{path}: axes.{name}: duplicate value {next(x for x in labels if labels.count(x) > 1)!r}")
+    kinds = {type(_column_value(lab)) for lab, _ in items}
+    if len(kinds) > 1:  # one column type per axis: mixed numbers and labels become labels
+        items = [(str(lab), v) for lab, v in items]
+    return items
+
+
+def _label(value: Any) -> Any:
+    if value is None:
+        return "none"
+    if isinstance(value, (bool, int, float, str)):
+        return value
+    return json.dumps(value, separators=(",", ":"), sort_keys=True)
+
+
+def _column_value(label: Any) -> Any:
+    return float(label) if isinstance(label, int) and not isinstance(label, bool) else label
+
+
+def _is_number(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _check_axis_value(path: str, name: str, label: Any, value: Any) -> None:
+    where = f"{path}: axes.{name}: {label!r}:"
+    if name in ("lamp_distance", "roughness") and not (_is_number(value) and value > 0):
+        raise UserError(f"{where} expected a positive number")
+    if name == "range_noise" and not (_is_number(value) and value >= 0):
+        raise UserError(f"{where} expected a number >= 0 (metres)")
+    if name == "polarization" and value not in ("ideal", "fresnel"):
+        raise UserError(f"{where} expected 'ideal' or 'fresnel'")
+    if name == "analyzer_angles":
+        ok = (isinstance(value, int) and not isinstance(value, bool) and value >= 3) or (
+            isinstance(value, list) and len(value) >= 3 and all(_is_number(a) for a in value)
+        )
+        if not ok:
+            raise UserError(f"{where} expected an integer >= 3 or a list of >= 3 angles in degrees")
+    if name == "noise" and not (value is None or isinstance(value, dict)):
+        raise UserError(f"{where} expected null or a mapping of camera noise settings")
+    if name == "bsdf" and not (value in ("torrance_sparrow", "ward") or isinstance(value, dict)):
+        raise UserError(f"{where} expected 'torrance_sparrow', 'ward' or a material mapping")
+
+
+def _physical_scene(renderer: Renderer, base: dict, chosen: dict[str, tuple[Any, Any]], path: str) -> dict:
+    scene = copy.deepcopy(base)
+    for name in _APPLY_ORDER:
+        if name in chosen:
+            renderer.apply_axis(scene, name, chosen[name][1], where=f"{path}: axes.{name}")
+    for name, (_, value) in chosen.items():
+        if "." in name:
+            set_dotted(scene, name, copy.deepcopy(value), where=f"{path}: axes.{name}")
+    if "lamp_distance" in chosen:
+        renderer.apply_axis(scene, "lamp_distance", chosen["lamp_distance"][1], where=f"{path}: axes.lamp_distance")
+    renderer.validate(scene, where=f"{path}: scene")
+    return scene
+
+
+def _method(path: str, i: int, m: str | _Method, check: bool) -> Method:
+    spec = _Method(method=m) if isinstance(m, str) else m
+    if check:
+        from nearlight.estimator import METHODS, load_method
+
+        if ":" in spec.method:
+            try:
+                load_method(spec.method)
+            except UserError as exc:
+                raise UserError(f"{path}: methods[{i}]: {exc}") from None
+        elif spec.method not in METHODS:
+            raise UserError(
+                f"{path}: methods[{i}]: unknown method {spec.method!r} "
+                f"(expected one of {', '.join(METHODS)} or module:function)"
+            )
+    return Method(spec.name or spec.method, spec.method, dict(spec.options))
