@@ -1,0 +1,111 @@
+"""The lamp: a point source behind an ideal linear polarizer.
+
+Two independent routes, which the tests compare:
+
+- ``nearlight_lamp`` (used for rendering): a point emitter whose emitted
+  Stokes vector is that of unpolarized light of intensity ``I`` after an
+  ideal linear polarizer with world axis ``axis`` (projected onto the plane
+  normal to each emitted ray): ``I/2 · [1, cos 2φ, sin 2φ, 0]`` in Mitsuba's
+  Stokes basis of the ray, with ``path``.
+- :func:`polarizer_sheet`: Mitsuba's unpolarized ``point`` emitter with a
+  physical ``polarizer`` sheet just in front of it; shadow rays only pass a
+  sheet with the ``volpath`` integrator (DESIGN.md).
+"""
+
+from __future__ import annotations
+
+from types import ModuleType
+
+import numpy as np
+
+PLUGIN = "nearlight_lamp"
+
+
+def register(mi: ModuleType) -> None:
+    """Register ``nearlight_lamp`` with the active Mitsuba variant."""
+    import drjit as dr
+
+    class PolarizedPointLamp(mi.Emitter):
+        def __init__(self, props):
+            super().__init__(props)
+            self.position = mi.ScalarPoint3f(props.get("position"))
+            self.intensity = float(props.get("intensity", 1.0))
+            self.axis = mi.ScalarVector3f(props.get("axis"))
+            self.m_flags = mi.EmitterFlags.DeltaPosition
+
+        def sample_direction(self, it, sample, active=True):
+            ds = dr.zeros(mi.DirectionSample3f)
+            ds.p = mi.Point3f(self.position)
+            ds.time = it.time
+            ds.pdf = 1.0
+            ds.delta = True
+            d = ds.p - it.p
+            ds.dist = dr.norm(d)
+            ds.d = d / ds.dist
+            forward = -ds.d  # propagation direction of the emitted light
+            axis = mi.Vector3f(self.axis)
+            axis = dr.normalize(axis - dr.dot(axis, forward) * forward)
+            # The polarizer in its own frame (x = its axis), rotated into the ray's Stokes basis.
+            pol = mi.mueller.rotate_mueller_basis_collinear(
+                mi.mueller.linear_polarizer(1.0), forward, axis, mi.mueller.stokes_basis(forward)
+            )
+            value = dr.select(active, self.intensity / dr.square(ds.dist), 0.0)
+            return ds, mi.Spectrum(pol) * mi.depolarizer(mi.UnpolarizedSpectrum(value))
+
+        def pdf_direction(self, it, ds, active=True):
+            return mi.Float(0.0)
+
+        def eval_direction(self, it, ds, active=True):
+            return dr.zeros(mi.Spectrum)
+
+        def eval(self, si, active=True):
+            return dr.zeros(mi.Spectrum)
+
+        def to_string(self):
+            return f"PolarizedPointLamp[position={self.position}, intensity={self.intensity}]"
+
+    mi.register_emitter(PLUGIN, lambda props: PolarizedPointLamp(props))
+
+
+def polarized_lamp(position, intensity: float, axis) -> dict:
+    """Mitsuba dict of the lamp as a polarized point emitter (the rendering route)."""
+    return {"type": PLUGIN, "position": list(map(float, position)), "intensity": float(intensity),
+            "axis": list(map(float, axis))}  # fmt: skip
+
+
+def polarizer_sheet(mi: ModuleType, position, intensity: float, axis, toward, *, gap: float = 1e-3,
+                    half_size: float = 0.05) -> dict[str, dict]:  # fmt: skip
+    """Mitsuba dicts of the lamp as an unpolarized point light behind a polarizer sheet.
+
+    Parameters
+    ----------
+    mi : module
+    position, axis : array_like, shape (3,)
+        Lamp position (metres) and polarizer axis (world).
+    intensity : float
+        Radiant intensity before the polarizer, one channel.
+    toward : array_like, shape (3,)
+        A point the sheet faces (e.g. the object's centre).
+    gap, half_size : float
+        Distance from the lamp to the sheet and the sheet's half width, metres:
+        a 1 mm gap and 5 cm half width cover 88° around ``toward``.
+
+    Returns
+    -------
+    dict
+        ``{"lamp": point emitter, "lamp_sheet": polarizer rectangle}``; render with ``volpath``.
+    """
+    position = np.asarray(position, float)
+    normal = np.asarray(toward, float) - position
+    normal /= np.linalg.norm(normal)
+    x = np.asarray(axis, float) - np.dot(axis, normal) * normal
+    x /= np.linalg.norm(x)
+    y = np.cross(normal, x)
+    frame = np.eye(4)
+    frame[:3, 0], frame[:3, 1], frame[:3, 2] = x * half_size, y * half_size, normal
+    frame[:3, 3] = position + gap * normal
+    return {
+        "lamp": {"type": "point", "position": position.tolist(), "intensity": {"type": "uniform", "value": intensity}},
+        "lamp_sheet": {"type": "rectangle", "to_world": mi.ScalarTransform4f(frame.tolist()),
+                       "bsdf": {"type": "polarizer", "theta": 0.0}},
+    }  # fmt: skip

@@ -1,0 +1,84 @@
+"""Import Mitsuba 3 with a working Dr.Jit LLVM backend, or fall back to scalar.
+
+Dr.Jit's LLVM backend aborts (uncatchably) with Debian's default libLLVM 14/15;
+LLVM >= 17 works (DESIGN.md, "Facts measured"). :func:`mitsuba` points
+``DRJIT_LIBLLVM_PATH`` at such a library *before* the first ``import mitsuba``
+when the user has not set it, and selects the variant the generator renders
+with:
+
+- ``llvm_ad_mono_polarized`` (default): vectorised; rendered once per colour
+  channel, which reproduces RGB exactly.
+- ``scalar_spectral_polarized`` (fallback, with a warning): when no LLVM >= 17
+  is found. All spectra the generator builds are wavelength-independent, so any
+  one wavelength of a spectral render is the exact mono value. Slow: pixels
+  are traced one by one in Python.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+import warnings
+from functools import cache
+from types import ModuleType
+
+LLVM_VARIANT = "llvm_ad_mono_polarized"
+SCALAR_VARIANT = "scalar_spectral_polarized"
+#: Oldest LLVM major version Dr.Jit 1.5 works with on these machines.
+MIN_LLVM = 17
+_SEARCH = ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib64", "/usr/lib", "/usr/local/lib")
+
+
+class ScalarFallbackWarning(UserWarning):
+    """Rendering falls back to Mitsuba's slow scalar variant (no usable LLVM)."""
+
+
+def find_libllvm() -> str | None:
+    """Path of the newest ``libLLVM`` with major version >= 17, or None."""
+    best: tuple[int, str] | None = None
+    for folder in _SEARCH:
+        for path in glob.glob(os.path.join(folder, "libLLVM*.so*")) + glob.glob("/usr/lib/llvm-*/lib/libLLVM*.so*"):
+            m = re.search(r"libLLVM(?:-|\.so\.)(\d+)", os.path.basename(path))
+            if m and int(m.group(1)) >= MIN_LLVM and (best is None or int(m.group(1)) > best[0]):
+                best = (int(m.group(1)), path)
+    return None if best is None else best[1]
+
+
+@cache
+def mitsuba() -> ModuleType:
+    """The ``mitsuba`` module with the generator's variant set (see module doc).
+
+    Returns
+    -------
+    module
+        ``mitsuba``; ``mitsuba.variant()`` is :data:`LLVM_VARIANT` or
+        :data:`SCALAR_VARIANT`.
+    """
+    user_set = "DRJIT_LIBLLVM_PATH" in os.environ
+    if not user_set:
+        lib = find_libllvm()
+        if lib is not None:
+            os.environ["DRJIT_LIBLLVM_PATH"] = lib
+    import mitsuba as mi
+
+    if user_set or "DRJIT_LIBLLVM_PATH" in os.environ:
+        mi.set_variant(LLVM_VARIANT)
+    else:
+        warnings.warn(
+            f"no libLLVM >= {MIN_LLVM} found (set DRJIT_LIBLLVM_PATH); rendering with the slow "
+            f"{SCALAR_VARIANT} variant",
+            ScalarFallbackWarning,
+            stacklevel=2,
+        )
+        mi.set_variant(SCALAR_VARIANT)
+    from nearlight.generator import bsdfs, lamp
+
+    bsdfs.register(mi)
+    lamp.register(mi)
+    return mi
+
+
+def is_scalar(mi: ModuleType) -> bool:
+    """Whether ``mi`` runs a scalar (one ray at a time) variant."""
+    return mi.variant().startswith("scalar")

@@ -1,0 +1,65 @@
+"""Scene to capture directory: render (cached), add noise, write atomically."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from nearlight.capture import write_capture
+from nearlight.errors import UserError
+from nearlight.generator.noise import add_camera_noise, add_range_noise
+from nearlight.generator.render import render_clean
+from nearlight.generator.scene import Scene
+
+
+def render_capture(scene: Scene, out_dir: str | os.PathLike, *, cache_dir: str | os.PathLike | None = None,
+                   progress: bool = True, overwrite: bool = False) -> Path:  # fmt: skip
+    """Render ``scene`` and write its capture to ``out_dir``.
+
+    Camera noise (``capture.noise``) and range noise (``capture.range_noise_m``)
+    are applied with seeds derived from ``capture.seed``. The output folder is
+    checked before rendering, and written atomically, so a failure never
+    leaves a partial capture.
+
+    Parameters
+    ----------
+    scene : Scene
+    out_dir : path-like
+        Capture directory to create.
+    cache_dir : path-like, optional
+        Render cache (see :func:`render_clean`).
+    progress : bool
+    overwrite : bool
+        Replace an existing capture at ``out_dir``.
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
+
+    Raises
+    ------
+    UserError
+        ``out_dir`` exists (without ``overwrite``) or is not writable; or the
+        scene cannot be rendered (see :func:`render_clean`).
+    """
+    out = Path(out_dir)
+    check_writable(out, overwrite=overwrite)
+    capture = render_clean(scene, cache_dir=cache_dir, progress=progress)
+    cap = scene.capture
+    capture = add_camera_noise(capture, noise=cap.noise, seed=cap.seed)
+    capture = add_range_noise(capture, sigma_m=cap.range_noise_m, seed=cap.seed + 1)
+    return write_capture(capture, out, overwrite=overwrite)
+
+
+def check_writable(out: Path, *, overwrite: bool) -> None:
+    """Raise :class:`UserError` unless a capture can be created at ``out``."""
+    if out.exists() and not overwrite:
+        raise UserError(f"{out}: already exists (choose another --out or pass --overwrite)")
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: exists and is not a directory")
+    parent = out.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise UserError(f"{out}: cannot write there ({parent} is not a writable folder)")

@@ -1,0 +1,387 @@
+"""Render a scene to a noise-free capture (Stokes images, exact P and N, truth).
+
+How a capture is rendered
+-------------------------
+- Variant ``llvm_ad_mono_polarized`` (see :mod:`nearlight.generator.llvm`),
+  one colour channel at a time, so RGB truth is reproduced exactly.
+- **Pixel-centre sampling.** Every sample of a pixel traces the ray through
+  the pixel's centre (no anti-aliasing), so each pixel holds the radiance of
+  exactly the surface point whose ``P`` and ``N`` the capture records, as a
+  calibrated range finder would pair them. With the default ``max_depth: 2``
+  (direct light only, the paper's model) this is deterministic and one sample
+  per pixel is exact; ``spp`` only averages the indirect bounces when
+  ``max_depth > 2``.
+- The integrator is Mitsuba's ``path``; its Mueller-matrix result is rotated
+  into the sensor's Stokes frame exactly as Mitsuba's ``stokes`` integrator
+  does (x axis = image horizontal), giving S0, S1, S2. One render serves every
+  analyzer angle: ``I(θ) = ½ (S0 + S1 cos 2θ + S2 sin 2θ)``.
+- Specular-only (``kd = 0``) and diffuse-only (``ks = 0``) renders give
+  ``truth_specular`` / ``truth_diffuse``. With direct light only the image is
+  linear in ``ks``, ``kd`` and the lamp intensity, so the two parts are
+  rendered once with unit values and scaled per channel (exact), and the full
+  image is their sum; with ``max_depth > 2`` every part is rendered per
+  channel, and the full image separately.
+- ``P`` and ``N`` come from ``mi.Scene.ray_intersect`` of the same pixel-centre
+  rays (shading normals: those the BSDF was evaluated with).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+from nearlight.capture import Camera, Capture
+from nearlight.errors import UserError
+from nearlight.generator.scene import MitsubaMaterial, Scene
+
+#: Bump when a change alters rendered values (invalidates caches).
+RENDER_VERSION = 1
+#: Render passes: which lobes are on.
+PARTS = ("specular", "diffuse", "full")
+
+
+# --------------------------------------------------------------------------- scene dicts
+
+
+def _transform(mi: ModuleType, m: Any) -> Any:
+    return mi.ScalarTransform4f(np.asarray(m, float).tolist())
+
+
+def sensor_dict(mi: ModuleType, scene: Scene) -> dict:
+    """Mitsuba perspective sensor (box filter) for ``scene.camera``."""
+    cam = scene.camera
+    return {
+        "type": "perspective",
+        "fov": cam.fov_x_deg,
+        "fov_axis": "x",
+        "to_world": mi.ScalarTransform4f().look_at(origin=cam.position, target=cam.look_at, up=cam.up),
+        "film": {"type": "hdrfilm", "width": cam.width, "height": cam.height, "rfilter": {"type": "box"}, "pixel_format": "luminance"},
+        "sampler": {"type": "independent", "sample_count": scene.capture.spp},
+    }
+
+
+def _per_channel(value: Any, channel: int) -> Any:
+    """A Mitsuba dict with every ``{type: rgb, value: [r, g, b]}`` replaced by channel ``channel``."""
+    if isinstance(value, dict):
+        if value.get("type") == "rgb" and isinstance(value.get("value"), (list, tuple)) and len(value["value"]) == 3:
+            return float(value["value"][channel])
+        return {k: _per_channel(v, channel) for k, v in value.items()}
+    return value
+
+
+def bsdf_dict(scene: Scene, *, part: str, channel: int | None) -> dict:
+    """The object's Mitsuba BSDF for one render pass.
+
+    ``channel`` None means unit ``ks``/``kd`` (the linear, direct-light case).
+    """
+    mat = scene.material
+    if isinstance(mat, MitsubaMaterial):
+        return _per_channel(mat.bsdf, channel)
+    unit = channel is None
+    ks = 1.0 if unit else mat.specular[channel]
+    kd = 1.0 if unit else mat.kd[channel]
+    return {
+        "type": "nearlight_bsdf",
+        "model": mat.model,
+        "roughness": mat.roughness,
+        "ks": ks if part in ("specular", "full") else 0.0,
+        "kd": kd if part in ("diffuse", "full") else 0.0,
+        "polarization": mat.polarization,
+        "eta": mat.eta,
+    }
+
+
+def object_dicts(mi: ModuleType, scene: Scene, bsdf: dict, scratch: Path) -> dict[str, dict]:
+    """The object's shapes with ``bsdf``, transforms converted for Mitsuba."""
+    from nearlight.generator.shapes import BUILDERS
+
+    shapes = BUILDERS[scene.object.type](scene.object, bsdf, scratch)
+    return {name: {**d, "to_world": _transform(mi, d["to_world"])} for name, d in shapes.items()}
+
+
+def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int | None = None,
+               lamp_route: str = "emitter", scratch: Path, stokes: bool = False) -> dict:  # fmt: skip
+    """The whole Mitsuba scene dict for one render pass.
+
+    Parameters
+    ----------
+    part : {"specular", "diffuse", "full"}
+    channel : int or None
+        Colour channel (0, 1, 2) or None for unit reflectances and intensity.
+    lamp_route : {"emitter", "sheet"}
+        The polarized point emitter (``path``) or a point light behind a
+        polarizer sheet (``volpath``); see :mod:`nearlight.generator.lamp`.
+    stokes : bool
+        Wrap the integrator in Mitsuba's ``stokes`` (for ``mi.render``).
+    """
+    from nearlight.generator import lamp
+
+    intensity = 1.0 if channel is None else scene.lamp.intensity[channel]
+    if lamp_route == "emitter":
+        lamps = {"lamp": lamp.polarized_lamp(scene.lamp.position, intensity, scene.lamp.polarizer_axis)}
+        integrator = {"type": "path", "max_depth": scene.capture.max_depth}
+    else:
+        lamps = lamp.polarizer_sheet(mi, scene.lamp.position, intensity, scene.lamp.polarizer_axis,
+                                     scene.object.position)  # fmt: skip
+        integrator = {"type": "volpath", "max_depth": scene.capture.max_depth + 1}
+    if stokes:
+        integrator = {"type": "stokes", "integrator": integrator}
+    return {
+        "type": "scene",
+        "integrator": integrator,
+        "sensor": sensor_dict(mi, scene),
+        **object_dicts(mi, scene, bsdf_dict(scene, part=part, channel=channel), scratch),
+        **lamps,
+    }
+
+
+# --------------------------------------------------------------------------- tracing
+
+
+def pixel_rays(mi: ModuleType, sensor: Any) -> Any:
+    """Rays through every pixel centre, row-major from the top-left pixel."""
+    import drjit as dr
+
+    w, h = sensor.film().size()
+    idx = dr.arange(mi.UInt32, w * h)
+    pos = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
+    ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
+    return ray
+
+
+def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=None) -> np.ndarray:
+    """Stokes S0, S1, S2 at every pixel centre, in the sensor frame.
+
+    Returns
+    -------
+    ndarray, shape (3, H, W)
+        Mean over ``spp`` samples; x axis of the Stokes frame = image horizontal.
+    """
+    import drjit as dr
+
+    sensor = mscene.sensors()[0]
+    w, h = sensor.film().size()
+    ray = pixel_rays(mi, sensor)
+    integrator = mscene.integrator()
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(seed, w * h)
+    # As Mitsuba's stokes integrator: rotate from the ray's implicit basis to the sensor's x axis.
+    vertical = sensor.world_transform() @ mi.Vector3f(0.0, 1.0, 0.0)
+    to_sensor = mi.Spectrum(mi.mueller.rotate_stokes_basis(-ray.d, mi.mueller.stokes_basis(-ray.d),
+                                                           dr.cross(ray.d, vertical)))  # fmt: skip
+    total = np.zeros((3, h * w))
+    for _ in range(spp):
+        spec, _, _ = integrator.sample(mscene, sampler, ray, None, True)
+        spec = to_sensor * spec
+        stokes = [spec[i, 0] for i in range(3)]
+        dr.eval(stokes)
+        total += np.stack([np.asarray(s, dtype=float).reshape(-1) for s in stokes])
+        sampler.advance()
+        if tick is not None:
+            tick()
+    return (total / spp).reshape(3, h, w)
+
+
+def surface(mi: ModuleType, mscene: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Exact ``P`` and ``N`` ``[H, W, 3]`` at pixel centres (NaN where no surface)."""
+    sensor = mscene.sensors()[0]
+    w, h = sensor.film().size()
+    si = mscene.ray_intersect(pixel_rays(mi, sensor))
+    valid = np.asarray(si.is_valid(), dtype=bool).reshape(h, w)
+    P = np.stack([np.asarray(c, float) for c in si.p], -1).reshape(h, w, 3)
+    N = np.stack([np.asarray(c, float) for c in si.sh_frame.n], -1).reshape(h, w, 3)
+    P[~valid] = np.nan
+    N[~valid] = np.nan
+    return P, N
+
+
+def lamp_inside(mi: ModuleType, mscene: Any, position: Any) -> bool:
+    """Whether ``position`` is inside a closed object (odd crossings on most of 3 rays)."""
+    votes = 0
+    for d in ((0.5773, 0.5774, 0.5774), (-0.267, 0.535, -0.802), (0.0, -0.6, 0.8)):
+        o, crossings = mi.Point3f(*position), 0
+        for _ in range(64):
+            si = mscene.ray_intersect(mi.Ray3f(o, mi.Vector3f(*d)))
+            if not bool(np.asarray(si.is_valid()).reshape(-1)[0]):
+                break
+            crossings += 1
+            o = si.spawn_ray(mi.Vector3f(*d)).o
+        votes += crossings % 2
+    return votes >= 2
+
+
+# --------------------------------------------------------------------------- render_clean
+
+
+def render_key(scene: Scene) -> str:
+    """Hash of everything the clean render depends on (not noise, seed, angles)."""
+    doc = scene.model_dump(mode="json")
+    cap = doc["capture"]
+    relevant = {
+        "version": RENDER_VERSION,
+        **{k: doc[k] for k in ("camera", "object", "material", "lamp")},
+        "spp": cap["spp"],
+        "max_depth": cap["max_depth"],
+    }
+    if scene.object.type == "mesh":
+        relevant["mesh_sha256"] = hashlib.sha256(Path(scene.object.file).read_bytes()).hexdigest()
+    return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:24]
+
+
+def render_clean(scene: Scene, *, cache_dir: str | os.PathLike | None = None, progress: bool = True) -> Capture:
+    """Render ``scene`` to a noise-free capture.
+
+    Parameters
+    ----------
+    scene : Scene
+    cache_dir : path-like, optional
+        Folder of cached renders, keyed by :func:`render_key`; a hit skips Mitsuba.
+    progress : bool
+        Show a progress bar on stderr.
+
+    Returns
+    -------
+    Capture
+        ``stack`` for ``capture.analyzer_angles_deg``, exact ``P``/``N``,
+        ``extra``: ``S0``, ``S1``, ``S2``, ``truth_specular``,
+        ``truth_diffuse`` (analytic materials), ``mask``; ``truth`` with lamp
+        and BSDF.
+
+    Raises
+    ------
+    UserError
+        The camera sees no object, or the lamp is inside it.
+    """
+    key = render_key(scene)
+    cached = None if cache_dir is None else Path(cache_dir) / f"{key}.npz"
+    if cached is not None and cached.is_file():
+        try:
+            with np.load(cached) as z:
+                arrays = {k: z[k] for k in z.files}
+        except (OSError, ValueError):
+            arrays = None  # a damaged cache entry: render again
+    else:
+        arrays = None
+    if arrays is None:
+        arrays = _render_arrays(scene, progress=progress)
+        if cached is not None:
+            _save_atomic(cached, arrays)
+    return assemble(scene, arrays, key=key)
+
+
+def _save_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
+    """Run Mitsuba: ``P``, ``N``, ``to_world`` and Stokes ``[3, H, W, 3]`` per part."""
+    from tqdm import tqdm
+
+    from nearlight.generator.llvm import mitsuba
+
+    mi = mitsuba()
+    analytic = not isinstance(scene.material, MitsubaMaterial)
+    linear = analytic and scene.capture.max_depth == 2
+    if linear:  # unit renders, scaled per channel below
+        passes = [(p, None) for p in ("specular", "diffuse")]
+    else:
+        passes = [(p, c) for c in range(3) for p in (("specular", "diffuse", "full") if analytic else ("full",))]
+    spp = scene.capture.spp
+    with tempfile.TemporaryDirectory(prefix="nearlight-") as scratch, tqdm(
+        total=len(passes) * spp, desc="render", unit="pass", disable=not progress, leave=False
+    ) as bar:
+        geometry = mi.load_dict(scene_dict(mi, scene, part="full", channel=0, scratch=Path(scratch)))
+        P, N = surface(mi, geometry)
+        _check_geometry(mi, scene, geometry, P)
+        to_world = np.asarray(geometry.sensors()[0].world_transform().matrix, float).reshape(4, 4)
+        stokes: dict[str, np.ndarray] = {}
+        for part, channel in passes:
+            mscene = mi.load_dict(scene_dict(mi, scene, part=part, channel=channel, scratch=Path(scratch)))
+            s = trace_stokes(mi, mscene, spp=spp, tick=lambda: bar.update(1))
+            if channel is None:
+                scale = np.asarray(scene.lamp.intensity) * np.asarray(
+                    scene.material.specular if part == "specular" else scene.material.kd
+                )
+                stokes[part] = s[..., None] * scale
+            else:
+                stokes.setdefault(part, np.zeros((*s.shape, 3)))[..., channel] = s
+    if linear:
+        stokes["full"] = stokes["specular"] + stokes["diffuse"]
+    out = {"P": P, "N": N, "to_world": to_world}
+    out.update({f"stokes_{k}": v.astype(np.float32) for k, v in stokes.items()})
+    return out
+
+
+def _check_geometry(mi: ModuleType, scene: Scene, geometry: Any, P: np.ndarray) -> None:
+    from nearlight.generator.shapes import CLOSED
+
+    if not np.isfinite(P).all(axis=-1).any():
+        raise UserError(
+            f"{scene.source}: camera: sees no part of the object (check camera.position/look_at/fov_x_deg "
+            f"and object.position)"
+        )
+    if scene.object.type in CLOSED and lamp_inside(mi, geometry, scene.lamp.position):
+        raise UserError(f"{scene.source}: lamp.position: {list(scene.lamp.position)} is inside the object")
+
+
+def analyzer_stack(stokes: np.ndarray, angles_deg: Any) -> np.ndarray:
+    """Ideal-analyzer images ``½ (S0 + S1 cos 2θ + S2 sin 2θ)``.
+
+    Parameters
+    ----------
+    stokes : ndarray, shape (3, H, W, C)
+    angles_deg : array_like, shape (K,)
+
+    Returns
+    -------
+    ndarray, shape (K, H, W, C)
+    """
+    t = np.radians(np.asarray(angles_deg, float))[:, None, None, None]
+    return 0.5 * (stokes[0] + stokes[1] * np.cos(2 * t) + stokes[2] * np.sin(2 * t))
+
+
+def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Capture:
+    """The clean :class:`Capture` from rendered arrays."""
+    P, N = arrays["P"].astype(np.float32), arrays["N"].astype(np.float32)
+    full = arrays["stokes_full"]
+    mask = np.isfinite(P).all(axis=-1)
+    extra = {f"S{i}": full[i] for i in range(3)}
+    for part in ("specular", "diffuse"):
+        if f"stokes_{part}" in arrays:
+            extra[f"truth_{part}"] = arrays[f"stokes_{part}"][0]
+    extra["mask"] = mask.astype(np.float32)
+    angles = np.asarray(scene.capture.analyzer_angles_deg, float)
+    cam = scene.camera
+    return Capture(
+        width=cam.width,
+        height=cam.height,
+        camera=Camera(position=np.asarray(cam.position, float), to_world=arrays["to_world"], fov_x_deg=cam.fov_x_deg),
+        P=P,
+        N=N,
+        stack=analyzer_stack(full, angles).astype(np.float32),
+        analyzer_angles_deg=angles,
+        lamp_polarizer_axis=np.asarray(scene.lamp.polarizer_axis, float) / math.hypot(*scene.lamp.polarizer_axis),
+        truth={
+            "lamp_position": list(scene.lamp.position),
+            "lamp_intensity": list(scene.lamp.intensity),
+            "bsdf": scene.material.truth(),
+        },
+        extra=extra,
+        meta={"generator": {"scene": scene.model_dump(mode="json"), "render_key": key, "pixel_sampling": "centre"}},
+    )

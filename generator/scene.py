@@ -1,0 +1,405 @@
+"""Scene files: what to render, validated (pydantic v2), with ``--set`` overrides.
+
+A scene has five sections: ``camera``, ``object``, ``material``, ``lamp`` and
+``capture``. Positions are in metres, angles in degrees (the file is what a
+human types); colours are ``[r, g, b]``. ``Scene.model_dump(mode="json")``
+loads back to the same scene.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Annotated, Any, Literal, Union
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, ValidationInfo, field_validator, model_validator
+
+from nearlight.errors import UserError
+
+PositiveFloat = Annotated[float, Field(gt=0)]
+Vec3 = tuple[float, float, float]
+RGB = tuple[Annotated[float, Field(ge=0)], Annotated[float, Field(ge=0)], Annotated[float, Field(ge=0)]]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
+
+
+def _nonzero(v: Vec3, what: str) -> Vec3:
+    if not any(v):
+        raise ValueError(f"{what} must not be the zero vector")
+    return v
+
+
+class CameraSpec(_Model):
+    """Pinhole camera: ``position`` looking at ``look_at``, ``up`` roughly up."""
+
+    position: Vec3
+    look_at: Vec3
+    up: Vec3 = (0.0, 0.0, 1.0)
+    fov_x_deg: Annotated[float, Field(gt=0, lt=180)] = 40.0
+    resolution: tuple[Annotated[int, Field(gt=0, le=16384)], Annotated[int, Field(gt=0, le=16384)]] = (640, 480)
+
+    @model_validator(mode="after")
+    def _geometry(self) -> CameraSpec:
+        d = np.subtract(self.look_at, self.position)
+        if not np.linalg.norm(d) > 0:
+            raise ValueError("look_at must differ from position")
+        if np.linalg.norm(np.cross(d / np.linalg.norm(d), self.up)) < 1e-6 * max(np.linalg.norm(self.up), 1e-300):
+            raise ValueError("up must not be parallel to the viewing direction (or zero)")
+        return self
+
+    @property
+    def width(self) -> int:
+        return self.resolution[0]
+
+    @property
+    def height(self) -> int:
+        return self.resolution[1]
+
+
+class _Placed(_Model):
+    """Placement shared by every object: rotate (``rotation_deg``, then turn
+    local +z onto ``normal`` if given), then translate to ``position``."""
+
+    position: Vec3 = (0.0, 0.0, 0.0)
+    rotation_deg: Vec3 = (0.0, 0.0, 0.0)
+    normal: Vec3 | None = None
+
+    @field_validator("normal")
+    @classmethod
+    def _normal(cls, v: Vec3 | None) -> Vec3 | None:
+        return None if v is None else _nonzero(v, "normal")
+
+
+class Board(_Placed):
+    """Flat rectangle ``size = [width, height]`` in its local xy-plane, facing +z."""
+
+    type: Literal["board"]
+    size: tuple[PositiveFloat, PositiveFloat] = (0.3, 0.3)
+
+
+class Sphere(_Placed):
+    type: Literal["sphere"]
+    radius: PositiveFloat = 0.05
+
+
+class Cylinder(_Placed):
+    """Cylinder along local z, centred on ``position``, closed by two discs."""
+
+    type: Literal["cylinder"]
+    radius: PositiveFloat = 0.04
+    length: PositiveFloat = 0.12
+
+
+class Bookend(_Placed):
+    """L-shaped bent plate: a base plate (local xy, +y from the bend, facing +z) and
+    a second plate leaving the bend (along local x) at ``bend_deg`` from the base,
+    both facing into the bend."""
+
+    type: Literal["bookend"]
+    width: PositiveFloat = 0.12
+    length_a: PositiveFloat = 0.10
+    length_b: PositiveFloat = 0.08
+    bend_deg: Annotated[float, Field(gt=0, lt=180)] = 90.0
+
+
+class Torus(_Placed):
+    """Torus around local z (a triangle mesh with smooth normals)."""
+
+    type: Literal["torus"]
+    major_radius: PositiveFloat = 0.06
+    minor_radius: PositiveFloat = 0.025
+    segments: tuple[Annotated[int, Field(ge=8, le=4096)], Annotated[int, Field(ge=8, le=4096)]] = (192, 96)
+
+    @model_validator(mode="after")
+    def _radii(self) -> Torus:
+        if self.minor_radius >= self.major_radius:
+            raise ValueError("minor_radius must be smaller than major_radius")
+        return self
+
+
+class Mesh(_Placed):
+    """A PLY mesh (path relative to the scene file), scaled by ``scale``."""
+
+    type: Literal["mesh"]
+    file: str
+    scale: PositiveFloat = 1.0
+
+    @field_validator("file")
+    @classmethod
+    def _file(cls, v: str, info: ValidationInfo) -> str:
+        base = (info.context or {}).get("base")
+        path = Path(v) if base is None else Path(base) / v
+        if path.suffix.lower() != ".ply":
+            raise ValueError(f"expected a .ply file, got {v!r}")
+        if not path.is_file():
+            raise ValueError(f"no such file {str(path)!r}")
+        return str(path.resolve())
+
+
+ObjectSpec = Annotated[Union[Board, Sphere, Cylinder, Bookend, Torus, Mesh], Field(discriminator="type")]
+
+
+class _Analytic(_Model):
+    kd: RGB = (0.0, 0.0, 0.0)
+    polarization: Literal["ideal", "fresnel"] = "ideal"
+    eta: Annotated[float, Field(gt=1)] = 1.5
+
+
+class TorranceSparrow(_Analytic):
+    """Paper eq. 6: ``ks`` per channel, ``sigma`` the slope-angle deviation (radians)."""
+
+    model: Literal["torrance_sparrow"]
+    ks: RGB
+    sigma: PositiveFloat
+
+    @property
+    def roughness(self) -> float:
+        return self.sigma
+
+    @property
+    def specular(self) -> RGB:
+        return self.ks
+
+    def truth(self) -> dict[str, Any]:
+        return {"model": self.model, "ks": list(self.ks), "sigma": self.sigma, "kd": list(self.kd),
+                "polarization": self.polarization, "eta": self.eta}  # fmt: skip
+
+
+class Ward(_Analytic):
+    """Paper eq. 19 (isotropic Ward, as RADIANCE): ``rho_s`` per channel, roughness ``alpha``."""
+
+    model: Literal["ward"]
+    rho_s: RGB
+    alpha: PositiveFloat
+
+    @property
+    def roughness(self) -> float:
+        return self.alpha
+
+    @property
+    def specular(self) -> RGB:
+        return self.rho_s
+
+    def truth(self) -> dict[str, Any]:
+        return {"model": self.model, "rho_s": list(self.rho_s), "alpha": self.alpha, "kd": list(self.kd),
+                "polarization": self.polarization, "eta": self.eta}  # fmt: skip
+
+
+class MitsubaMaterial(_Model):
+    """Any Mitsuba BSDF dict (e.g. ``{type: pplastic, ...}``) for model-mismatch studies.
+
+    Every ``{type: rgb, value: [r, g, b]}`` inside is rendered per channel.
+    """
+
+    model: Literal["mitsuba"]
+    bsdf: dict[str, Any]
+
+    @field_validator("bsdf")
+    @classmethod
+    def _bsdf(cls, v: dict[str, Any]) -> dict[str, Any]:
+        if not isinstance(v.get("type"), str):
+            raise ValueError("expected a Mitsuba BSDF dict with a 'type' key")
+        return v
+
+    def truth(self) -> dict[str, Any]:
+        return {"model": self.model, "bsdf": self.bsdf}
+
+
+MaterialSpec = Annotated[Union[TorranceSparrow, Ward, MitsubaMaterial], Field(discriminator="model")]
+
+
+class LampSpec(_Model):
+    """Point lamp of radiant intensity ``intensity`` (W/sr per channel, before the
+    polarizer) behind an ideal linear polarizer with world axis ``polarizer_axis``."""
+
+    position: Vec3
+    intensity: RGB = (1.0, 1.0, 1.0)
+    polarizer_axis: Vec3 = (1.0, 0.0, 0.0)
+
+    @field_validator("polarizer_axis")
+    @classmethod
+    def _axis(cls, v: Vec3) -> Vec3:
+        return _nonzero(v, "polarizer_axis")
+
+
+class CameraNoise(_Model):
+    """Sensor noise applied after rendering (see :mod:`nearlight.generator.noise`)."""
+
+    full_well: PositiveFloat = 20000.0
+    read_noise: Annotated[float, Field(ge=0)] = 5.0
+    bits: Annotated[int, Field(ge=1, le=24)] = 12
+    saturation: PositiveFloat | Literal["auto"] = "auto"
+
+
+class CaptureSpec(_Model):
+    """What is recorded: analyzer angles, sampling, noise, seed."""
+
+    analyzer_angles_deg: list[float] = Field(default_factory=lambda: [0.0, 22.5, 45.0, 67.5, 90.0, 112.5, 135.0, 157.5])
+    spp: Annotated[int, Field(ge=1, le=1 << 16)] = 1
+    max_depth: Annotated[int, Field(ge=2, le=64)] = 2
+    noise: CameraNoise | None = None
+    range_noise_m: Annotated[float, Field(ge=0)] = 0.0
+    seed: Annotated[int, Field(ge=0)] = 0
+
+    @field_validator("analyzer_angles_deg")
+    @classmethod
+    def _angles(cls, v: list[float]) -> list[float]:
+        if len({round(a % 180.0, 9) for a in v}) < 3:
+            raise ValueError("expected at least 3 distinct angles (mod 180°) to separate polarization")
+        return v
+
+
+class Scene(_Model):
+    """A scene file. Sections as the classes above; see ``scenes/*.yaml``."""
+
+    camera: CameraSpec
+    object: ObjectSpec
+    material: MaterialSpec
+    lamp: LampSpec
+    capture: CaptureSpec = Field(default_factory=CaptureSpec)
+    _source: str = PrivateAttr(default="<scene>")
+
+    @property
+    def source(self) -> str:
+        """Where the scene came from (file name, or ``<scene>``), for messages."""
+        return self._source
+
+
+_TAGS = {"board", "sphere", "cylinder", "bookend", "torus", "mesh", "torrance_sparrow", "ward", "mitsuba"}
+
+
+def load_scene(source: str | os.PathLike | Mapping[str, Any], *, overrides: Iterable[str] | Mapping[str, Any] = ()) -> Scene:
+    """Load and validate a scene.
+
+    Parameters
+    ----------
+    source : path-like or mapping
+        A YAML scene file, or the scene as a dict (e.g. ``scene.model_dump(mode="json")``).
+    overrides : iterable of str or mapping, optional
+        ``"dotted.key=value"`` strings (``value`` parsed as YAML, e.g.
+        ``"lamp.position=[0.2, 0.1, 0.3]"``) or ``{dotted key: value}``.
+
+    Returns
+    -------
+    Scene
+
+    Raises
+    ------
+    UserError
+        One line naming the file and key, for an unreadable file, an unknown
+        key, a wrong type or shape, or an out-of-range value.
+    """
+    if isinstance(source, Mapping):
+        name, base, data = "<scene>", None, copy.deepcopy(dict(source))
+    else:
+        path = Path(source)
+        name, base = str(path), path.parent
+        try:
+            data = yaml.safe_load(path.read_text())
+        except OSError as exc:
+            raise UserError(f"{path}: cannot read scene file ({exc.strerror or exc})") from None
+        except yaml.YAMLError as exc:
+            raise UserError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+        if not isinstance(data, dict):
+            raise UserError(f"{path}: expected a mapping with camera, object, material, lamp, capture")
+    for key, value in _parse_overrides(overrides, name):
+        _set_dotted(data, key, value, name)
+    try:
+        scene = Scene.model_validate(data, context={"base": base})
+    except ValidationError as exc:
+        raise UserError(f"{name}: {_describe(exc)}") from None
+    scene._source = name
+    return scene
+
+
+def _parse_overrides(overrides: Iterable[str] | Mapping[str, Any], name: str) -> list[tuple[str, Any]]:
+    if isinstance(overrides, Mapping):
+        return list(overrides.items())
+    out = []
+    for item in overrides:
+        key, sep, text = str(item).partition("=")
+        if not sep or not key.strip():
+            raise UserError(f"--set {item!r}: expected KEY=VALUE, e.g. lamp.position=[0.2,0.1,0.3]")
+        try:
+            out.append((key.strip(), yaml.safe_load(text)))
+        except yaml.YAMLError:
+            raise UserError(f"--set {item!r}: value is not valid YAML") from None
+    return out
+
+
+def _set_dotted(data: dict[str, Any], key: str, value: Any, name: str) -> None:
+    node = data
+    parts = key.split(".")
+    for i, part in enumerate(parts[:-1]):
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise UserError(f"{name}: {'.'.join(parts[: i + 1])}: is not a section, cannot set {key}")
+        node = child
+    node[parts[-1]] = value
+
+
+def _describe(exc: ValidationError) -> str:
+    """One line for the first validation error: dotted key, message, offending input."""
+    err = exc.errors(include_url=False)[0]
+    loc: list[str] = []
+    for i, part in enumerate(err["loc"]):
+        if i > 0 and part in _TAGS and err["loc"][i - 1] in ("object", "material"):
+            continue  # the discriminated-union tag pydantic inserts
+        loc.append(str(part))
+    msg = err["msg"].removeprefix("Value error, ")
+    if err["type"] == "missing" and loc and loc[-1].isdigit():  # a short tuple: name the tuple
+        loc.pop()
+        msg = f"too few items (expected {int(err['loc'][-1]) + 1} or more)"
+        err = {**err, "type": "too_short", "input": None}
+    key = ".".join(loc) or "(top level)"
+    if err["type"] == "extra_forbidden":
+        msg = "unknown key"
+    elif err["type"] == "missing":
+        msg = "missing (required)"
+    got = err.get("input")
+    shown = "" if got is None or err["type"] in ("extra_forbidden", "missing") or isinstance(got, dict) else f" (got {got!r})"
+    more = len(exc.errors()) - 1
+    return f"{key}: {msg}{shown}" + (f" [and {more} more error{'s' * (more > 1)}]" if more else "")
+
+
+def euler_rotation(rotation_deg: Vec3) -> np.ndarray:
+    """3×3 rotation about x, then y, then z (degrees), i.e. ``Rz @ Ry @ Rx``."""
+    rx, ry, rz = (math.radians(a) for a in rotation_deg)
+
+    def rot(axis: int, a: float) -> np.ndarray:
+        c, s = math.cos(a), math.sin(a)
+        i, j = [k for k in range(3) if k != axis]
+        m = np.eye(3)
+        m[i, i], m[i, j], m[j, i], m[j, j] = c, -s, s, c
+        return m
+
+    return rot(2, rz) @ rot(1, ry) @ rot(0, rx)
+
+
+def align_z(normal: Vec3) -> np.ndarray:
+    """3×3 shortest-arc rotation taking +z onto ``normal``."""
+    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    z = np.array([0.0, 0.0, 1.0])
+    v, c = np.cross(z, n), float(np.dot(z, n))
+    if c < -1 + 1e-12:
+        return np.diag([1.0, -1.0, -1.0])
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + vx + vx @ vx / (1.0 + c)
+
+
+def placement(obj: _Placed) -> np.ndarray:
+    """4×4 object-to-world transform of ``obj`` (rotation, then translation)."""
+    m = np.eye(4)
+    rot = euler_rotation(obj.rotation_deg)
+    if obj.normal is not None:
+        rot = align_z(obj.normal) @ rot
+    m[:3, :3] = rot
+    m[:3, 3] = obj.position
+    return m
