@@ -119,6 +119,38 @@ def stack_phase(stack: np.ndarray, angles_deg: Any) -> np.ndarray:
     return 0.5 * np.arctan2(coef[2], coef[1])
 
 
+def camera_noise_variance(stack: np.ndarray, *, noise: Any) -> np.ndarray:
+    """Variance of the generator's camera noise at each pixel of a clean stack, radiance².
+
+    The Gaussian approximation of :func:`nearlight.generator.add_camera_noise`:
+    with ``g = saturation / full_well`` (radiance per electron), shot noise
+    ``g·L``, read noise ``(g·read_noise)²`` and the ADC step ``q = saturation /
+    (2^bits − 1)`` as uniform rounding ``q²/12``. Clipping at the full well is
+    ignored (the ``auto`` exposure keeps clean pixels at ≤ 90 % of it).
+
+    Parameters
+    ----------
+    stack : ndarray, shape (K, H, W, 3)
+        Clean analyzer stack, radiance.
+    noise : mapping or CameraNoise
+        The camera noise settings (``full_well``, ``read_noise``, ``bits``, ``saturation``).
+
+    Returns
+    -------
+    ndarray, shape (K, H, W, 3)
+    """
+    from nearlight.generator.noise import AUTO_EXPOSURE
+    from nearlight.generator.scene import CameraNoise
+
+    if not isinstance(noise, CameraNoise):
+        noise = CameraNoise.model_validate(dict(noise))
+    L = np.clip(np.nan_to_num(np.asarray(stack, dtype=float)), 0.0, None)
+    saturation = float(L.max()) / AUTO_EXPOSURE if noise.saturation == "auto" else float(noise.saturation)
+    g = saturation / noise.full_well
+    q = saturation / (2**noise.bits - 1)
+    return g * L + (g * noise.read_noise) ** 2 + q**2 / 12.0
+
+
 def specular_crlb(capture: Any, *, noise_var: np.ndarray) -> dict[str, float]:
     """CRLB of the lamp position and σ for a Torrance–Sparrow capture with an analyzer stack.
 

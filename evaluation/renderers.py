@@ -224,7 +224,7 @@ class MitsubaRenderer(Renderer):
 
     name = "mitsuba"
     lamp_key = "lamp.position"
-    object_key = "object.shape"
+    object_key = "object.type"
     material_key = "material"
     angles_key = "capture.analyzer_angles_deg"
     polarization_key = "material.polarization"
@@ -244,13 +244,19 @@ class MitsubaRenderer(Renderer):
         except UserError as exc:
             raise UserError(f"{where}: {exc}") from None
 
+    def render_key(self, scene: dict) -> str:
+        """The generator's render hash (noise, seed and analyzer angles do not change a render)."""
+        from nearlight.generator.render import render_key
+
+        return render_key(self._scene(scene))
+
     def prepare(self, scene: dict, *, cache_dir: Path | None) -> bool:
         from nearlight.generator import render_clean
 
-        before = set(cache_dir.iterdir()) if cache_dir is not None and cache_dir.is_dir() else set()
-        render_clean(self._scene(scene), cache_dir=cache_dir, progress=False)
-        after = set(cache_dir.iterdir()) if cache_dir is not None and cache_dir.is_dir() else set()
-        return after != before
+        parsed = self._scene(scene)
+        hit = cache_dir is not None and (cache_dir / f"{self.render_key(scene)}.npz").is_file()
+        render_clean(parsed, cache_dir=cache_dir, progress=False)
+        return not hit
 
     def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
         from nearlight.generator import render_clean

@@ -275,8 +275,19 @@ def _check_axis_value(path: str, name: str, label: Any, value: Any) -> None:
         )
         if not ok:
             raise UserError(f"{where} expected an integer >= 3 or a list of >= 3 angles in degrees")
-    if name == "noise" and not (value is None or isinstance(value, dict)):
-        raise UserError(f"{where} expected null or a mapping of camera noise settings")
+    if name == "noise":
+        if not (value is None or isinstance(value, dict)):
+            raise UserError(f"{where} expected null or a mapping of camera noise settings")
+        if value is not None:
+            from pydantic import ValidationError as _VE
+
+            from nearlight.generator.scene import CameraNoise
+
+            try:
+                CameraNoise.model_validate(value)
+            except _VE as exc:
+                err = exc.errors()[0]
+                raise UserError(f"{where} {'.'.join(map(str, err['loc']))}: {err['msg']}") from None
     if name == "bsdf" and not (value in ("torrance_sparrow", "ward") or isinstance(value, dict)):
         raise UserError(f"{where} expected 'torrance_sparrow', 'ward' or a material mapping")
 

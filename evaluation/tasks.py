@@ -171,16 +171,14 @@ def _noisy(clean: Any, task: Mapping[str, Any]) -> Any:
 
 def _crlb(clean: Any, task: Mapping[str, Any]) -> dict[str, float]:
     """CRLB columns when they apply (TS truth, ideal mode, a stack, Gaussian-modelled camera noise)."""
-    from nearlight.evaluation.crlb import specular_crlb
+    from nearlight.evaluation.crlb import camera_noise_variance, specular_crlb
 
     bsdf = clean.truth["bsdf"]
     if not task["crlb"] or task["noise"] is None or clean.stack is None or bsdf.get("model") != "torrance_sparrow":
         return {}
     if bsdf.get("polarization", "ideal") != "ideal":
         return {}
-    from nearlight.generator import noise_variance
-
-    return specular_crlb(clean, noise_var=noise_variance(clean.stack, noise=task["noise"]))
+    return specular_crlb(clean, noise_var=camera_noise_variance(clean.stack, noise=task["noise"]))
 
 
 def run_task(task: Mapping[str, Any], *, renderer: Any, cache_dir: str | None) -> dict[str, Any]:

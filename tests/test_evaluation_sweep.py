@@ -1,0 +1,123 @@
+"""Sweep files: validation with one-line errors, expansion into tasks, axes applied to scenes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from nearlight.errors import UserError
+from nearlight.evaluation.sweep import load_sweep
+
+BASE = {
+    "name": "t",
+    "renderer": "analytic",
+    "scene": {"width": 32, "height": 24},
+    "methods": ["full"],
+}
+
+
+def _write(tmp_path, doc, name="s.yaml"):
+    path = tmp_path / name
+    path.write_text(doc if isinstance(doc, str) else yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+@pytest.mark.parametrize(
+    "change, expect",
+    [
+        ({"axes": {"lamp_distanse": [0.3]}}, "axes.lamp_distanse: unknown axis"),
+        ({"axes": {"lamp_distance": [0.3, -1]}}, "axes.lamp_distance: -1: expected a positive number"),
+        ({"axes": {"roughness": []}}, "axes.roughness: expected at least one value"),
+        ({"axes": {"polarization": ["linear"]}}, "axes.polarization: 'linear': expected 'ideal' or 'fresnel'"),
+        ({"axes": {"analyzer_angles": [2]}}, "axes.analyzer_angles: 2: expected an integer >= 3"),
+        ({"axes": {"noise": ["loud"]}}, "axes.noise: 'loud': expected null or a mapping"),
+        ({"axes": {"roughness": [0.1, 0.1]}}, "axes.roughness: duplicate value '0.1'"),
+        ({"seeds": 0}, "seeds: Value error, expected a positive count"),
+        ({"methods": []}, "methods: List should have at least 1 item"),
+        ({"methods": ["nonsense"]}, "methods[0]: unknown method 'nonsense'"),
+        ({"methods": ["full", "full"]}, "methods: duplicate method name 'full'"),
+        ({"colour": "red"}, "colour: Extra inputs are not permitted"),
+        ({"scene": "missing.yaml"}, "scene: no such scene file"),
+        ({"scene": {"widht": 3}}, "scene: widht: not an analytic_capture argument"),
+        ({"axes": {"polarization": ["fresnel"]}}, "supports only 'ideal' polarization"),
+        ({"set": {"width.x": 3}}, "set.width.x: 'width' is not a mapping"),
+    ],
+)
+def test_bad_sweep_files_give_one_line_errors(tmp_path, change, expect):
+    path = _write(tmp_path, {**BASE, **change})
+    with pytest.raises(UserError) as err:
+        load_sweep(path)
+    msg = str(err.value)
+    assert "\n" not in msg and msg.startswith(str(path)), msg
+    assert expect in msg, msg
+
+
+def test_not_yaml_and_not_a_mapping(tmp_path):
+    with pytest.raises(UserError, match=r"s\.yaml: not valid YAML \(line 2\)"):
+        load_sweep(_write(tmp_path, "name: x\n  bad: [\n"))
+    with pytest.raises(UserError, match="expected a mapping of sweep keys"):
+        load_sweep(_write(tmp_path, "- 1\n- 2\n"))
+    with pytest.raises(UserError, match="no such sweep file"):
+        load_sweep(tmp_path / "nope.yaml")
+
+
+def test_unknown_module_function_is_one_line(tmp_path):
+    for spec in ("no_such_module_xyz:fn", "math:no_such_function"):
+        path = _write(tmp_path, {**BASE, "methods": ["full", spec]})
+        with pytest.raises(UserError) as err:
+            load_sweep(path)
+        assert "\n" not in str(err.value) and "methods[1]" in str(err.value) and spec in str(err.value)
+
+
+def test_expansion_product_order_and_shared_renders(tmp_path):
+    doc = {
+        **BASE,
+        "axes": {
+            "lamp_distance": [0.3, 0.5],
+            "noise": {"none": None, "low": {"read_noise": 1.0}},
+            "range_noise": [0.0, 0.001],
+            "roughness": [0.05, 0.1, 0.2],
+        },
+        "seeds": [3, 4],
+        "methods": ["full", {"name": "paper-fine", "method": "paper", "options": {"dt": 0.0005}}],
+    }
+    sweep = load_sweep(_write(tmp_path, doc))
+    # 2 distances x 2 noise x 2 range noise x 3 roughness x 2 seeds x 2 methods
+    assert len(sweep.tasks) == 96
+    # noise, range noise, seed and method re-use a render: 2 x 3 physical configurations
+    assert len(sweep.render_keys) == 6
+    assert len({t.task_id for t in sweep.tasks}) == 96
+    first = sweep.tasks[0]
+    assert first.config == {"lamp_distance": 0.3, "noise": "none", "range_noise": 0.0, "roughness": 0.05}
+    assert (first.seed, first.method.label) == (3, "full")
+    assert sweep.tasks[1].method.label == "paper-fine" and sweep.tasks[1].method.options == {"dt": 0.0005}
+    assert sweep.tasks[2].seed == 4
+    low = [t for t in sweep.tasks if t.config["noise"] == "low"]
+    assert low[0].noise == {"read_noise": 1.0} and low[0].render_key == first.render_key
+    # ids are stable: loading again gives the same ids and hash
+    again = load_sweep(_write(tmp_path, doc, "again.yaml"))
+    assert [t.task_id for t in again.tasks] == [t.task_id for t in sweep.tasks]
+    assert again.sweep_hash == sweep.sweep_hash
+
+
+def test_axes_change_the_scene(tmp_path):
+    doc = {
+        **BASE,
+        "scene": {"width": 32, "height": 24, "lamp_position": [0.05, 0.15, 0.35]},
+        "axes": {"lamp_distance": [0.5], "bsdf": ["ward"], "roughness": [0.1], "analyzer_angles": [6],
+                 "object": ["sphere"], "bsdf.kd": [[0.1, 0.2, 0.3]]},
+    }
+    scene = load_sweep(_write(tmp_path, doc)).tasks[0].scene
+    # lamp moved along the ray from the sphere centre (analytic default (0, 0, 0.1)) to 0.5 m from it
+    centre = np.array([0.0, 0.0, 0.1])
+    ray = np.array([0.05, 0.15, 0.35]) - centre
+    assert np.allclose(scene["lamp_position"], centre + 0.5 * ray / np.linalg.norm(ray))
+    assert scene["shape"] == "sphere"
+    # ward from the default TS material: alpha = sqrt(2) * roughness; rho_s = 4 pi alpha^2 ks (peak-matched)
+    assert scene["bsdf"]["model"] == "ward" and scene["bsdf"]["alpha"] == pytest.approx(math.sqrt(2) * 0.1)
+    assert np.allclose(scene["bsdf"]["rho_s"], 4 * math.pi * 0.02 * np.array([0.8, 0.6, 0.5]))
+    assert scene["analyzer_angles_deg"] == [0.0, 30.0, 60.0, 90.0, 120.0, 150.0]
+    assert scene["bsdf"]["kd"] == [0.1, 0.2, 0.3]
