@@ -131,7 +131,7 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
     else:
         lamps = lamp.polarizer_sheet(mi, scene.lamp.position, intensity, scene.lamp.polarizer_axis,
                                      scene.object.position)  # fmt: skip
-        integrator = {"type": "volpath", "max_depth": scene.capture.max_depth + 1}
+        integrator = {"type": "volpath", "max_depth": scene.capture.max_depth}
     if stokes:
         integrator = {"type": "stokes", "integrator": integrator}
     return {
