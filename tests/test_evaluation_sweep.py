@@ -111,8 +111,9 @@ def test_axes_change_the_scene(tmp_path):
                  "object": ["sphere"], "bsdf.kd": [[0.1, 0.2, 0.3]]},
     }
     scene = load_sweep(_write(tmp_path, doc)).tasks[0].scene
-    # lamp moved along the ray from the sphere centre (analytic default (0, 0, 0.1)) to 0.5 m from it
-    centre = np.array([0.0, 0.0, 0.1])
+    # lamp moved along the ray from the sphere centre (analytic_capture's default, filled into the scene)
+    centre = np.array(scene["sphere_centre"])
+    assert np.linalg.norm(centre) > 0  # the sphere's centre, not the board's origin
     ray = np.array([0.05, 0.15, 0.35]) - centre
     assert np.allclose(scene["lamp_position"], centre + 0.5 * ray / np.linalg.norm(ray))
     assert scene["shape"] == "sphere"
