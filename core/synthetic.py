@@ -94,7 +94,7 @@ def analytic_capture(
     height: int = 120,
     fov_x_deg: float = 50.0,
     camera_position: Sequence[float] = (0.0, -0.35, 0.5),
-    look_at: Sequence[float] = (0.0, 0.0, 0.0),
+    look_at: Sequence[float] | None = None,
     up: Sequence[float] = (0.0, 0.0, 1.0),
     lamp_position: Sequence[float] = (0.05, 0.15, 0.35),
     lamp_intensity: Any = (2.0, 2.0, 2.0),
@@ -105,8 +105,8 @@ def analytic_capture(
     board_size: float = 0.4,
     board_centre: Sequence[float] = (0.0, 0.0, 0.0),
     board_normal: Sequence[float] = (0.0, 0.0, 1.0),
-    sphere_centre: Sequence[float] = (0.0, 0.0, 0.1),
-    sphere_radius: float = 0.1,
+    sphere_centre: Sequence[float] = (0.0, 0.0, 0.15),
+    sphere_radius: float = 0.15,
     with_normals: bool = True,
 ) -> Capture:
     """A noise-free capture of a board or sphere, computed in closed form.
@@ -123,7 +123,8 @@ def analytic_capture(
         Horizontal field of view, degrees.
     camera_position, look_at, up : sequence of 3 floats
         Pinhole camera pose (metres); the camera-to-world matrix is Mitsuba's
-        look-at (see :func:`look_at_matrix`).
+        look-at (see :func:`look_at_matrix`). ``look_at`` defaults to the
+        board's or the sphere's centre.
     lamp_position : sequence of 3 floats
         Point lamp, metres.
     lamp_intensity : float or sequence of 3 floats
@@ -152,6 +153,8 @@ def analytic_capture(
     """
     bsdf = dict(DEFAULT_BSDF if bsdf is None else bsdf)
     origin = np.asarray(camera_position, dtype=float)
+    if look_at is None:
+        look_at = board_centre if shape == "board" else sphere_centre
     to_world = look_at_matrix(origin, look_at, up)
     rays = camera_rays(to_world, width, height, fov_x_deg)
     if shape == "board":

@@ -1,0 +1,165 @@
+"""Shared numerical pieces: the log-linear regression and a robust least-squares fit."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from nearlight.errors import UserError
+
+
+def log_regression(X: np.ndarray, Y: np.ndarray, *, where: str = "specular") -> tuple[np.ndarray, float, np.ndarray]:
+    """Ks and σ from the regression line ``Y_m = −X/σ² + ln Ks,m`` (paper eq. 11, 16–17).
+
+    Parameters
+    ----------
+    X : ndarray, shape (n,)
+        ``α²/2`` per pixel.
+    Y : ndarray, shape (n, 3)
+        ``ln E_m + ln cos θr`` per pixel and channel.
+    where : str
+        Name for error messages.
+
+    Returns
+    -------
+    ks : ndarray, shape (3,)
+        ``exp(b_m)``.
+    sigma : float
+        Mean over channels of ``sqrt(−1/a_m)``.
+    sigma_rgb : ndarray, shape (3,)
+
+    Raises
+    ------
+    UserError
+        When a slope is not negative (no specular lobe in the data).
+    """
+    xc = X - X.mean()
+    sxx = float(xc @ xc)
+    slope = (xc @ (Y - Y.mean(axis=0))) / sxx if sxx > 0 else np.zeros(Y.shape[1])
+    intercept = Y.mean(axis=0) - slope * X.mean()
+    if not np.all(slope < 0):
+        m = "RGB"[int(np.argmax(slope >= 0))]
+        raise UserError(
+            f"{where}: channel {m}: regression slope {slope[int(np.argmax(slope >= 0))]:.3g} is not negative "
+            "(the specular pixels do not fall off away from the mirror direction)"
+        )
+    sigma_rgb = np.sqrt(-1.0 / slope)
+    return np.exp(intercept), float(sigma_rgb.mean()), sigma_rgb
+
+
+def central_jacobian(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """Central-difference Jacobian ``[n_residuals, n_params]`` with per-parameter steps."""
+    cols = []
+    for i, h in enumerate(step):
+        dx = np.zeros_like(x)
+        dx[i] = h
+        cols.append((fun(x + dx) - fun(x - dx)) / (2.0 * h))
+    return np.stack(cols, axis=1)
+
+
+def robust_fit(
+    fun: Callable[[np.ndarray], np.ndarray],
+    x0: np.ndarray,
+    *,
+    typical: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    loss: str = "soft_l1",
+    f_scale: float | None = None,
+    jac: Callable[[np.ndarray], np.ndarray] | None = None,
+    f_floor: float = 0.0,
+    max_nfev: int = 200,
+) -> dict:
+    """Robust nonlinear least squares with a sandwich covariance.
+
+    Two passes of :func:`scipy.optimize.least_squares` (trust-region
+    reflective): the first with a loss scale from the starting residuals, the
+    second with ``f_scale = 3 × 1.4826 · MAD`` of the first pass's residuals,
+    so that pixels more than ~3 noise standard deviations off (outliers,
+    saturation) are down-weighted. The covariance is the M-estimator sandwich
+    ``A⁻¹ B A⁻¹ · n/(n − p)`` with ``A = Σ ψ'(ρ) J Jᵀ``, ``B = Σ ψ(ρ)² J Jᵀ``;
+    for Gaussian noise and a linear loss it is ``s² (JᵀJ)⁻¹``.
+
+    Parameters
+    ----------
+    fun : callable
+        Residuals ``(params,) -> (n,)``.
+    x0 : ndarray, shape (p,)
+    typical : ndarray, shape (p,)
+        Typical magnitude of each parameter (finite-difference steps, scaling).
+    lower, upper : ndarray, shape (p,)
+        Bounds.
+    loss : str
+        ``least_squares`` loss (``linear``, ``soft_l1``, ``huber``, ``cauchy``).
+    f_scale : float or None
+        Fixed loss scale (residual units); None: the two-pass estimate above.
+    jac : callable, optional
+        Jacobian ``(params,) -> (n, p)``; default central differences with
+        steps ``1e-6 × typical``.
+    f_floor : float
+        Smallest loss scale (keeps noise-free fits quadratic, so they converge fast).
+    max_nfev : int
+        Evaluation budget per pass.
+
+    Returns
+    -------
+    dict
+        ``x``, ``cov`` (p × p), ``f_scale``, ``cost``, ``nfev``, ``status``, ``rms``.
+    """
+    if jac is None:
+        step = 1e-6 * np.asarray(typical, dtype=float)
+
+        def jac(x: np.ndarray) -> np.ndarray:
+            return central_jacobian(fun, x, step)
+
+    def solve(x: np.ndarray, scale: float) -> object:
+        return least_squares(
+            fun, x, jac=jac, bounds=(lower, upper), loss=loss, f_scale=scale,
+            x_scale=np.asarray(typical, dtype=float), method="trf", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+            max_nfev=max_nfev,
+        )
+
+    r0 = fun(x0)
+    floor = max(f_floor, 1e-9 * max(float(np.max(np.abs(r0))), 1e-300))
+    scales = [f_scale] if f_scale is not None else [max(_mad(r0), floor), None]
+    res, nfev = None, 0
+    for s in scales:
+        if s is None:
+            s = max(3.0 * _mad(res.fun), floor)
+        res = solve(res.x if res is not None else np.asarray(x0, dtype=float), s)
+        nfev += res.nfev
+    J = jac(res.x)
+    rho = res.fun
+    n, p = J.shape
+    if loss == "linear":
+        psi, dpsi = rho, np.ones_like(rho)
+    else:
+        z = (rho / s) ** 2
+        d1, d2 = _LOSS_DERIVATIVES[loss](z)
+        psi, dpsi = d1 * rho, d1 + 2.0 * z * d2
+    A = J.T @ (dpsi[:, None] * J)
+    B = J.T @ ((psi**2)[:, None] * J)
+    try:
+        Ainv = np.linalg.inv(A)
+        cov = Ainv @ B @ Ainv * (n / max(n - p, 1))
+    except np.linalg.LinAlgError:
+        cov = np.full((p, p), np.nan)
+    return {
+        "x": res.x, "cov": cov, "f_scale": float(s), "cost": float(res.cost), "nfev": int(nfev),
+        "status": int(res.status), "rms": float(np.sqrt(np.mean(rho**2))),
+    }
+
+
+def _mad(r: np.ndarray) -> float:
+    return float(1.4826 * np.median(np.abs(r - np.median(r))))
+
+
+#: ρ'(z) and ρ''(z) of scipy's losses, z = (residual / f_scale)².
+_LOSS_DERIVATIVES: dict[str, Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]] = {
+    "soft_l1": lambda z: ((1 + z) ** -0.5, -0.5 * (1 + z) ** -1.5),
+    "huber": lambda z: (np.where(z <= 1, 1.0, z**-0.5), np.where(z <= 1, 0.0, -0.5 * z**-1.5)),
+    "cauchy": lambda z: (1 / (1 + z), -1 / (1 + z) ** 2),
+    "arctan": lambda z: (1 / (1 + z**2), -2 * z / (1 + z**2) ** 2),
+}

@@ -1,0 +1,440 @@
+"""The paper's two-stage method (Hara et al. 2002, §3): ``paper-init`` and ``paper``.
+
+Stage 1 (§3.2–3.3, ``paper-init``): the lamp lies on the ray ``L = P + t·Lp``
+(eq. 9) from the peak pixel's surface point along the mirror direction ``Lp``
+(eq. 8). For each t, every specular pixel gives a point ``(X, Y_m)`` with
+``X = α(t)²/2`` and ``Y_m = ln E_m + ln cos θr`` (eq. 12–13), where
+``E_m = I_s,m · r(t)² / I_lamp`` (eq. 6–7; ``I_lamp = 1``, so Ks absorbs the
+lamp intensity). ``t*`` minimises ``E_p(t) = Σ_m r_XY_m`` (eq. 14–15), the sum
+of the correlation coefficients; Ks and σ come from the regression line
+(eq. 16–17), σ the mean over channels.
+
+Eq. 8 as printed, ``N + (N, V) N − V``, is the mirror direction only when
+``N·V = 1``; we use the exact mirror ``2 (N·V) N − V``
+(:func:`nearlight.reflectance.mirror_direction`).
+
+Stage 2 (§3.4, ``paper``): alternating minimisation (AM) of eq. 18,
+``E_energy(Ks, σ, t) = Σ_m Σ_k (E_k,m(t) − Ks,m / cos θr,k · exp(−α_k(t)² / 2σ²))²``
+over the surface pixels, steps 1–6 with thresholds ε1–ε4. Two steps are
+implemented as what they are meant to do rather than as printed:
+
+* step 2: the printed Ks update ``Σ E / Σ g`` (g the lobe) minimises
+  E_energy only when g is constant; we use the exact minimiser over Ks,
+  ``Σ E g / Σ g²``, so the step cannot increase E_energy;
+* step 4-2 (garbled in print: a squared residual and a mix of ``I_s``,
+  ``t*`` and ``t^(n)``): steepest descent on ``κ = 1/σ`` with the gradient
+  ``∂E_energy/∂κ = 2 Σ_m Σ_k ρ_k,m · Ks,m α_k² κ g_k``, ``ρ`` the residual.
+  The step γ defaults to the inverse Gauss–Newton curvature
+  ``1 / (2 Σ (Ks α² κ g)²)`` at each step (so the scale comes from the
+  capture), and a step that would increase E_energy is halved until it does
+  not (so E_energy never increases).
+
+Step 6 searches ``{t − Δt, t, t + Δt}``, keeping t on ties.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from nearlight.capture import Capture
+from nearlight.errors import UserError
+from nearlight.estimator.fitting import log_regression
+from nearlight.estimator.observation import Observation, observe
+from nearlight.estimator.result import Estimate
+from nearlight.reflectance import mirror_direction, shading_geometry
+
+#: Largest number of (t, pixel) pairs evaluated at once.
+_CHUNK = 2_000_000
+
+
+class RaySearch:
+    """E_p(t) for the lamp on the ray ``P + t·Lp`` of one observation.
+
+    Parameters
+    ----------
+    obs : Observation
+    """
+
+    def __init__(self, obs: Observation):
+        i, j = obs.peak
+        self.origin = obs.P[i, j]
+        self.direction = mirror_direction(obs.N[i, j], obs.V[i, j])
+        m = obs.mask
+        self.P, self.N = obs.P[m], obs.N[m]
+        self.camera = obs.camera_position
+        # Y_m = ln I_s + ln cos θr + 2 ln r(t): the t-free part.
+        self.Y0 = np.log(obs.specular[m]) + np.log(obs.cos_r[m])[:, None]
+        self.evaluations = 0
+
+    def lamp(self, t: float) -> np.ndarray:
+        """Lamp position at distance t (m), shape (3,)."""
+        return self.origin + t * self.direction
+
+    def xy(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``X [T, n]`` and ``Y [T, n, 3]`` of eq. 12–13 for distances t (m), shape (T,)."""
+        L = self.origin + np.asarray(t, dtype=float)[:, None] * self.direction
+        g = shading_geometry(self.P[None], self.N[None], self.camera, L[:, None, :])
+        return 0.5 * g.alpha**2, self.Y0[None] + 2.0 * np.log(g.r)[..., None]
+
+    def ep(self, t: np.ndarray) -> np.ndarray:
+        """E_p(t) of eq. 15 for each t (m), shape (T,)."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        out = np.empty(t.shape)
+        step = max(1, _CHUNK // max(len(self.P), 1))
+        for a in range(0, len(t), step):
+            X, Y = self.xy(t[a : a + step])
+            xc = X - X.mean(axis=1, keepdims=True)
+            yc = Y - Y.mean(axis=1, keepdims=True)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                r = np.einsum("tn,tnm->tm", xc, yc) / np.sqrt(
+                    np.einsum("tn,tn->t", xc, xc)[:, None] * np.einsum("tnm,tnm->tm", yc, yc)
+                )
+            out[a : a + step] = np.nan_to_num(r, nan=0.0).sum(axis=1)
+        self.evaluations += len(t)
+        return out
+
+
+def scan_search(ep: Callable[[np.ndarray], np.ndarray], *, t_max: float, dt: float) -> dict:
+    """The paper's plain scan: E_p at every ``k·Δt`` in (0, t_max], one step at a time.
+
+    Returns
+    -------
+    dict
+        ``t`` (the grid minimiser, m), ``k`` (its index, 1-based), ``t_grid``,
+        ``ep`` (the whole curve), ``k_max``.
+    """
+    k_max = int(np.floor(t_max / dt + 1e-9))
+    ks = np.arange(1, k_max + 1)
+    values = np.array([ep(np.array([k * dt]))[0] for k in ks])
+    k = int(ks[int(np.argmin(values))])
+    return {"t": k * dt, "k": k, "t_grid": ks * dt, "ep": values, "k_max": k_max}
+
+
+def fast_search(ep: Callable[[np.ndarray], np.ndarray], *, t_max: float, dt: float, n_coarse: int = 48) -> dict:
+    """The same grid minimiser as :func:`scan_search`, from far fewer evaluations.
+
+    A log-spaced coarse grid of ``n_coarse`` points on the Δt grid brackets
+    the minimum, a bounded Brent search refines it to Δt/4, and the Δt-grid
+    points around the result are compared directly. It returns the scan's
+    answer whenever E_p is unimodal between the coarse neighbours of the
+    coarse minimum.
+    """
+    k_max = int(np.floor(t_max / dt + 1e-9))
+    kc = np.unique(np.round(np.geomspace(1, k_max, n_coarse)).astype(int))
+    vc = ep(kc * dt)
+    i = int(np.argmin(vc))
+    lo, hi = kc[max(i - 1, 0)], kc[min(i + 1, len(kc) - 1)]
+    seen = dict(zip(kc.tolist(), vc.tolist()))
+    if hi - lo > 2:
+        res = minimize_scalar(
+            lambda t: float(ep(np.array([t]))[0]), bounds=(lo * dt, hi * dt), method="bounded",
+            options={"xatol": dt / 4},
+        )
+        centre = int(round(res.x / dt))
+    else:
+        centre = int(kc[i])
+    near = np.array([k for k in range(centre - 2, centre + 3) if lo <= k <= hi and k not in seen], dtype=int)
+    if len(near):
+        seen.update(zip(near.tolist(), ep(near * dt).tolist()))
+    k = min((k for k in seen if lo <= k <= hi), key=lambda k: (seen[k], k))
+    grid = np.array(sorted(seen))
+    return {"t": k * dt, "k": k, "t_grid": grid * dt, "ep": np.array([seen[g] for g in grid]), "k_max": k_max}
+
+
+#: t searches by name.
+SEARCHES = {"fast": fast_search, "scan": scan_search}
+
+
+def _defaults(obs: Observation, t_max: float | None, dt: float | None) -> tuple[float, float]:
+    """``t_max`` = 10 × the camera–highlight distance; ``Δt`` = 1 mm (the paper's), or scale/1000 if larger."""
+    dt = max(1e-3, obs.scale / 1000.0) if dt is None else float(dt)
+    t_max = 10.0 * obs.scale if t_max is None else float(t_max)
+    if not (dt > 0 and t_max > 2 * dt):
+        raise UserError(f"options: need 0 < dt and t_max > 2·dt, got dt={dt}, t_max={t_max}")
+    return t_max, dt
+
+
+def initial_estimate(capture: Capture, **options) -> Estimate:
+    """Method ``paper-init``: the paper's first stage (§3.2–3.3); options as :func:`stage_one`."""
+    return stage_one(capture, **options)[0]
+
+
+def stage_one(
+    capture: Capture,
+    *,
+    separation: str = "fit",
+    threshold: float = 0.05,
+    t_max: float | None = None,
+    dt: float | None = None,
+    search: str = "fast",
+    n_coarse: int = 48,
+) -> tuple[Estimate, Observation]:
+    """The paper's first stage (§3.2–3.3): the estimate and the observation it used.
+
+    Parameters
+    ----------
+    capture : Capture
+    separation : {"fit", "maxmin"}
+        Separation of an analyzer stack (see :func:`~nearlight.estimator.separate`).
+    threshold : float
+        Specular mask threshold, fraction of the peak pixel's mean specular.
+    t_max : float, optional
+        Upper bound of the lamp distance t, metres; default 10 × the distance
+        from the camera to the highlight.
+    dt : float, optional
+        Step Δt of t, metres; default 1 mm (the paper's), or 1/1000 of that
+        distance when larger.
+    search : {"fast", "scan"}
+        ``"scan"``: the paper's plain per-step scan; ``"fast"`` (default):
+        coarse grid and Brent refinement, same t to within Δt.
+    n_coarse : int
+        Coarse grid size of the fast search.
+
+    Raises
+    ------
+    UserError
+        Bad input (see :func:`~nearlight.estimator.observation.observe`) or a
+        ``t_max`` that cannot reach the lamp (E_p minimal at t_max).
+    """
+    clock = time.perf_counter()
+    obs = observe(capture, separation=separation, threshold=threshold)
+    t_max, dt = _defaults(obs, t_max, dt)
+    timings = {"observe": time.perf_counter() - clock}
+    clock = time.perf_counter()
+    ray = RaySearch(obs)
+    if search not in SEARCHES:
+        raise UserError(f"option search: expected one of {', '.join(SEARCHES)}, got {search!r}")
+    kwargs = {"n_coarse": int(n_coarse)} if search == "fast" else {}
+    found = SEARCHES[search](ray.ep, t_max=t_max, dt=dt, **kwargs)
+    if found["k"] >= found["k_max"]:
+        raise UserError(
+            f"{capture.name}: option t_max = {t_max:.4g} m cannot reach the lamp: E_p(t) is smallest at t_max; "
+            "raise --option t_max=..."
+        )
+    timings["t_search"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    t = found["t"]
+    X, Y = ray.xy(np.array([t]))
+    ks, sigma, sigma_rgb = log_regression(X[0], Y[0], where=f"{capture.name}: specular")
+    timings["regression"] = time.perf_counter() - clock
+    lamp = ray.lamp(t)
+    stage = {"t": t, "lamp_position": lamp, "ks": ks, "sigma": sigma, "sigma_rgb": sigma_rgb}
+    return Estimate(
+        method="paper-init",
+        lamp_position=lamp,
+        ks=ks,
+        sigma=sigma,
+        stages={"init": stage},
+        diagnostics={
+            "peak_pixel": list(obs.peak),
+            "ray_origin": ray.origin,
+            "ray_direction": ray.direction,
+            "n_specular_pixels": int(obs.mask.sum()),
+            "t_max": t_max,
+            "dt": dt,
+            "search": search,
+            "ep_evaluations": ray.evaluations,
+            "t_grid": found["t_grid"],
+            "ep": found["ep"],
+        },
+        timings=timings,
+    ), obs
+
+
+class Energy:
+    """E_energy of eq. 18 for the lamp on the peak ray: ``Σ (target − Ks · base · exp(−α² κ² / 2))²``.
+
+    Parameters
+    ----------
+    obs : Observation
+    origin, direction : ndarray, shape (3,)
+        The ray ``P + t·Lp``.
+    pixels : {"surface", "specular"}
+        The paper's "N_k surface points": every surface pixel, or the specular mask.
+    space : {"ratio", "radiance"}
+        ``"ratio"`` (eq. 18 as printed): residuals of ``E = I_s r(t)²`` against
+        ``Ks/cos θr · exp(…)``. Because E itself depends on t, this energy
+        shrinks as the lamp approaches the surface, and when the peak ray
+        misses the lamp the AM drifts towards t → 0. ``"radiance"``: residuals
+        of ``I_s`` against ``Ks/(cos θr r²) · exp(…)``, the same model in image
+        space (each residual divided by r²), which has no such drift.
+    """
+
+    def __init__(
+        self, obs: Observation, origin: np.ndarray, direction: np.ndarray, *, pixels: str = "surface",
+        space: str = "ratio",
+    ):
+        if pixels not in ("surface", "specular"):
+            raise UserError(f"option pixels: expected 'surface' or 'specular', got {pixels!r}")
+        if space not in ("ratio", "radiance"):
+            raise UserError(f"option energy: expected 'ratio' or 'radiance', got {space!r}")
+        s = obs.mask if pixels == "specular" else obs.surface
+        self.P, self.N, self.I = obs.P[s], obs.N[s], obs.specular[s]
+        self.cos_r = obs.cos_r[s]
+        self.camera, self.origin, self.direction = obs.camera_position, origin, direction
+        self.space = space
+
+    def at(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``target [n, 3]``, ``α² [n]`` and ``base [n]`` for the lamp at distance t (m)."""
+        g = shading_geometry(self.P, self.N, self.camera, self.origin + t * self.direction)
+        r2 = g.r**2
+        if self.space == "ratio":
+            return self.I * r2[:, None], g.alpha**2, 1.0 / self.cos_r
+        return self.I, g.alpha**2, 1.0 / (self.cos_r * r2)
+
+    @staticmethod
+    def lobe(a2: np.ndarray, base: np.ndarray, kappa: float) -> np.ndarray:
+        """``base · exp(−α² κ² / 2)``, shape (n,)."""
+        return base * np.exp(-0.5 * a2 * kappa**2)
+
+    @staticmethod
+    def value(target: np.ndarray, ks: np.ndarray, g: np.ndarray) -> float:
+        """E_energy for the residuals ``target − Ks g``."""
+        return float(np.sum((target - g[:, None] * ks) ** 2))
+
+
+def alternating_minimisation(
+    energy: Energy,
+    *,
+    ks: np.ndarray,
+    sigma: float,
+    t: float,
+    dt: float,
+    gamma: float | None = None,
+    eps1: float | None = None,
+    eps2: float | None = None,
+    eps3: float | None = None,
+    eps4: float | None = None,
+    max_outer: int = 2000,
+    max_inner: int = 200,
+) -> dict:
+    """Steps 1–6 of §3.4 from ``(ks, sigma, t)``; see the module docstring.
+
+    Defaults: ``ε1 = ε3 = 1e-6 σ*``, ``ε2 = 1e-6 max Ks*``, ``ε4 = Δt/2``
+    (t moves by Δt, so any move continues). ``gamma=None`` (default) takes
+    at each step the inverse Gauss–Newton curvature in κ,
+    ``1 / (2 Σ (∂ρ/∂κ)²)``; a number fixes γ. Either way a step that would
+    increase E_energy is halved until it does not.
+
+    Returns
+    -------
+    dict
+        ``ks``, ``sigma``, ``t``, ``energy`` (E_energy after each outer
+        iteration, starting with the initial value), ``outer``, ``inner``
+        (total inner steps), ``halvings``, ``gamma``, ``eps``, ``converged``.
+    """
+    ks = np.asarray(ks, dtype=float).copy()
+    eps1 = 1e-6 * sigma if eps1 is None else eps1
+    eps3 = 1e-6 * sigma if eps3 is None else eps3
+    eps2 = 1e-6 * float(np.max(np.abs(ks))) if eps2 is None else eps2
+    eps4 = dt / 2 if eps4 is None else eps4
+    E, a2, base = energy.at(t)
+    kappa = 1.0 / sigma
+    history = [energy.value(E, ks, energy.lobe(a2, base, kappa))]
+    inner_total = halvings = 0
+    converged = False
+    for outer in range(1, max_outer + 1):
+        # step 2: exact least-squares Ks for fixed σ, t
+        g = energy.lobe(a2, base, kappa)
+        ks_new = (E * g[:, None]).sum(axis=0) / float(g @ g)
+        # steps 3-5: steepest descent on κ = 1/σ
+        sigma_old = 1.0 / kappa
+        current = energy.value(E, ks_new, g)
+        for _ in range(max_inner):
+            inner_total += 1
+            rho = E - g[:, None] * ks_new
+            d_rho = (a2 * kappa * g)[:, None] * ks_new  # ∂ρ/∂κ
+            grad = 2.0 * float(np.sum(rho * d_rho))
+            step = (gamma if gamma is not None else 1.0 / (2.0 * float(np.sum(d_rho * d_rho)))) * grad
+            for _ in range(60):
+                trial = kappa - step
+                g_trial = energy.lobe(a2, base, trial)
+                value = energy.value(E, ks_new, g_trial)
+                if trial > 0 and value <= current:
+                    break
+                step /= 2.0
+                halvings += 1
+            else:
+                trial, g_trial, value = kappa, g, current
+            moved = abs(1.0 / trial - 1.0 / kappa)
+            kappa, g, current = trial, g_trial, value
+            if moved <= eps1:
+                break
+        # step 6: t among {t − Δt, t, t + Δt}
+        best = (current, t, E, a2, base)
+        for tc in (t - dt, t + dt):
+            if tc <= 0:
+                continue
+            Ec, a2c, bc = energy.at(tc)
+            vc = energy.value(Ec, ks_new, energy.lobe(a2c, bc, kappa))
+            if vc < best[0]:
+                best = (vc, tc, Ec, a2c, bc)
+        current, t_new, E, a2, base = best
+        history.append(current)
+        d_ks = float(np.max(np.abs(ks_new - ks)))
+        d_sigma = abs(1.0 / kappa - sigma_old)
+        d_t = abs(t_new - t)
+        ks, t = ks_new, t_new
+        if d_ks <= eps2 and d_sigma <= eps3 and d_t <= eps4:
+            converged = True
+            break
+    return {
+        "ks": ks, "sigma": 1.0 / kappa, "t": t, "energy": np.array(history), "outer": outer,
+        "inner": inner_total, "halvings": halvings, "gamma": "gauss-newton" if gamma is None else gamma,
+        "eps": [eps1, eps2, eps3, eps4], "converged": converged,
+    }
+
+
+def paper_estimate(
+    capture: Capture,
+    *,
+    gamma: float | None = None,
+    eps1: float | None = None,
+    eps2: float | None = None,
+    eps3: float | None = None,
+    eps4: float | None = None,
+    max_outer: int = 2000,
+    pixels: str = "surface",
+    energy: str = "ratio",
+    **init_options,
+) -> Estimate:
+    """Method ``paper``: ``paper-init`` followed by the AM refinement of eq. 18 (§3.4).
+
+    Parameters
+    ----------
+    capture : Capture
+    gamma, eps1, eps2, eps3, eps4, max_outer :
+        AM options; see :func:`alternating_minimisation` for defaults.
+    pixels : {"surface", "specular"}
+        Pixels of E_energy (default every surface pixel, as the paper's N_k).
+    energy : {"ratio", "radiance"}
+        ``"ratio"`` (default): eq. 18 as printed; ``"radiance"``: its image-space
+        form; see :class:`Energy`.
+    **init_options
+        Options of :func:`stage_one` (``separation``, ``threshold``,
+        ``t_max``, ``dt``, ``search``, ``n_coarse``).
+    """
+    init, obs = stage_one(capture, **init_options)
+    clock = time.perf_counter()
+    d = init.diagnostics
+    objective = Energy(obs, np.asarray(d["ray_origin"]), np.asarray(d["ray_direction"]), pixels=pixels, space=energy)
+    am = alternating_minimisation(
+        objective, ks=init.ks, sigma=init.sigma, t=init.stages["init"]["t"], dt=d["dt"], gamma=gamma,
+        eps1=eps1, eps2=eps2, eps3=eps3, eps4=eps4, max_outer=max_outer,
+    )
+    lamp = objective.origin + am["t"] * objective.direction
+    timings = {**init.timings, "am": time.perf_counter() - clock}
+    stage = {k: v for k, v in am.items() if k != "energy"}
+    return Estimate(
+        method="paper",
+        lamp_position=lamp,
+        ks=am["ks"],
+        sigma=am["sigma"],
+        stages={"init": init.stages["init"], "am": {**stage, "lamp_position": lamp}},
+        diagnostics={**d, "energy": am["energy"]},
+        timings=timings,
+    )

@@ -1,0 +1,89 @@
+"""The result every estimator returns."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+
+@dataclasses.dataclass
+class Estimate:
+    """A lamp position and specular reflectance estimated from one capture.
+
+    Attributes
+    ----------
+    method : str
+        Method name (``paper``, ``paper-init``, ``full``, ``distant`` or a
+        plug-in's ``module:function``).
+    lamp_position : ndarray, shape (3,)
+        World position of the lamp, metres.
+    ks : ndarray, shape (3,)
+        Torrance–Sparrow Ks per channel, absorbing the lamp intensity reaching
+        the surface (the estimators assume ``I_lamp = 1``): the true Ks times
+        that intensity (half the lamp's behind an ideal polarizer).
+    sigma : float
+        Torrance–Sparrow roughness σ, radians.
+    covariance : ndarray, shape (4, 4) or None
+        1-σ covariance of ``(x, y, z, sigma)`` (m², m·rad, rad²), when the
+        method provides one.
+    stages : dict of str to dict
+        Per-stage results (e.g. ``{"init": {...}, "am": {...}}``), JSON-ready.
+    diagnostics : dict
+        Curves and counts, e.g. ``t_grid`` and ``ep`` (the E_p(t) curve),
+        ``energy`` (E_energy per AM iteration), ``n_pixels``.
+    timings : dict of str to float
+        Seconds per stage.
+    light_model : dict
+        How to re-synthesise: ``{"type": "point"}``, or for the distant
+        baseline ``{"type": "distant", "light_direction": [...],
+        "view_direction": [...]}``.
+    """
+
+    method: str
+    lamp_position: np.ndarray
+    ks: np.ndarray
+    sigma: float
+    covariance: np.ndarray | None = None
+    stages: dict[str, dict] = dataclasses.field(default_factory=dict)
+    diagnostics: dict[str, Any] = dataclasses.field(default_factory=dict)
+    timings: dict[str, float] = dataclasses.field(default_factory=dict)
+    light_model: dict[str, Any] = dataclasses.field(default_factory=lambda: {"type": "point"})
+
+    def __post_init__(self) -> None:
+        self.lamp_position = np.asarray(self.lamp_position, dtype=float).reshape(3)
+        self.ks = np.asarray(self.ks, dtype=float).reshape(3)
+        self.sigma = float(self.sigma)
+        if self.covariance is not None:
+            self.covariance = np.asarray(self.covariance, dtype=float).reshape(4, 4)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict: lists for arrays, floats for scalars (NaN kept as None)."""
+        return {
+            "method": self.method,
+            "lamp_position": _jsonable(self.lamp_position),
+            "ks": _jsonable(self.ks),
+            "sigma": _jsonable(self.sigma),
+            "covariance": _jsonable(self.covariance),
+            "covariance_params": ["x", "y", "z", "sigma"],
+            "light_model": _jsonable(self.light_model),
+            "stages": _jsonable(self.stages),
+            "diagnostics": _jsonable(self.diagnostics),
+            "timings": _jsonable(self.timings),
+        }
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, Mapping):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not np.isfinite(x):
+        return None
+    return x
