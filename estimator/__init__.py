@@ -1,1 +1,15 @@
-"""Estimator: lamp position and specular reflectance from one capture (numpy/scipy only)."""
+"""Estimator: lamp position and specular reflectance from one capture (numpy/scipy only).
+
+Never imports Mitsuba or Dr.Jit: it reads a capture (format v1) and nothing
+else, so it runs on real captures and in tests without a renderer.
+
+Public API: :func:`estimate`, :class:`Estimate`, :data:`METHODS`,
+:func:`load_method`, :func:`render_specular`, :func:`separate`.
+"""
+
+from nearlight.estimator.api import METHODS, estimate, load_method
+from nearlight.estimator.resynth import render_specular
+from nearlight.estimator.result import Estimate
+from nearlight.estimator.separation import separate
+
+__all__ = ["METHODS", "Estimate", "estimate", "load_method", "render_specular", "separate"]

@@ -1,0 +1,98 @@
+"""One entry point for every estimator: built-in methods and ``module:function`` plug-ins."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import re
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from nearlight.capture import Capture, read_capture
+from nearlight.errors import UserError
+from nearlight.estimator.distant import distant_estimate
+from nearlight.estimator.full import full_estimate
+from nearlight.estimator.paper import initial_estimate, paper_estimate
+from nearlight.estimator.result import Estimate
+
+#: Built-in methods: ``fn(capture, **options) -> Estimate``.
+METHODS: dict[str, Callable[..., Estimate]] = {
+    "paper": paper_estimate,
+    "paper-init": initial_estimate,
+    "full": full_estimate,
+    "distant": distant_estimate,
+}
+
+
+def load_method(spec: str) -> Callable[..., Estimate]:
+    """The estimator function for a method name or a ``module:function`` spec.
+
+    Parameters
+    ----------
+    spec : str
+        A key of :data:`METHODS`, or ``"package.module:function"`` naming any
+        function with the signature ``fn(capture, **options) -> Estimate``.
+
+    Raises
+    ------
+    UserError
+        Unknown method, module that cannot be imported, or missing function.
+    """
+    if spec in METHODS:
+        return METHODS[spec]
+    module_name, sep, func_name = spec.partition(":")
+    if not sep or not module_name or not func_name:
+        raise UserError(f"method: expected one of {', '.join(METHODS)} or module:function, got {spec!r}")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise UserError(f"method {spec}: cannot import module {module_name!r} ({exc})") from None
+    fn = getattr(module, func_name, None)
+    if not callable(fn):
+        raise UserError(f"method {spec}: module {module_name!r} has no function {func_name!r}")
+    return fn
+
+
+_UNEXPECTED = re.compile(r"unexpected keyword argument '([^']+)'")
+
+
+def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", **options) -> Estimate:
+    """Estimate the lamp position and specular reflectance of one capture.
+
+    Parameters
+    ----------
+    capture : Capture or path-like
+        A capture, or a capture directory to read.
+    method : str, optional
+        ``"paper"`` (default), ``"paper-init"``, ``"full"``, ``"distant"`` or a
+        plug-in's ``"module:function"``.
+    **options
+        Method options (see each method's docstring), e.g. ``t_max=2.0``.
+
+    Returns
+    -------
+    Estimate
+        With ``method`` set to the name asked for and ``timings["total"]``.
+
+    Raises
+    ------
+    UserError
+        Bad input, unknown method or option.
+    """
+    fn = load_method(method)
+    if isinstance(capture, (str, os.PathLike, Path)):
+        capture = read_capture(capture)
+    clock = time.perf_counter()
+    try:
+        result = fn(capture, **options)
+    except TypeError as exc:
+        match = _UNEXPECTED.search(str(exc))
+        if match is None or match.group(1) not in options:
+            raise
+        raise UserError(f"option {match.group(1)!r}: not accepted by method {method}") from None
+    if not isinstance(result, Estimate):
+        raise UserError(f"method {method}: returned {type(result).__name__}, expected nearlight.estimator.Estimate")
+    result.method = method
+    result.timings["total"] = time.perf_counter() - clock
+    return result

@@ -1,0 +1,80 @@
+"""``nearlight estimate``: run an estimator on a capture directory."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from nearlight.errors import UserError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``estimate`` verb."""
+    p = subparsers.add_parser(
+        "estimate",
+        help="estimate the lamp position and specular reflectance of a capture",
+        description="Estimate the lamp's 3-D position (m), Ks (rgb) and sigma (rad) from a capture directory "
+        "(format v1). Methods: paper, paper-init, full, distant, or a plug-in module:function.",
+    )
+    p.add_argument("capture", metavar="DIR", help="capture directory (capture.json + capture.exr)")
+    p.add_argument("--method", default="paper", help="paper | paper-init | full | distant | module:function (default paper)")
+    p.add_argument("--json", metavar="OUT", help="write the estimate as JSON here")
+    p.add_argument("--plot", metavar="OUT.png", help="write E_p(t) and observed vs re-synthesised specular here")
+    p.add_argument(
+        "--option", metavar="KEY=VALUE", action="append", default=[],
+        help="method option, repeatable; VALUE is parsed as JSON when it can be (e.g. t_max=2.0, search=scan)",
+    )
+    p.set_defaults(run=run)
+
+
+def parse_options(pairs: list[str]) -> dict[str, Any]:
+    """``["k=v", ...]`` to a dict; values parsed as JSON, else kept as strings."""
+    out: dict[str, Any] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.isidentifier():
+            raise UserError(f"--option {pair!r}: expected KEY=VALUE with KEY a name, e.g. t_max=2.0")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def _write_json(doc: dict, path: Path) -> None:
+    """Write atomically: a temporary sibling renamed into place."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+        with os.fdopen(fd, "w") as f:
+            json.dump(doc, f, indent=2)
+            f.write("\n")
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise UserError(f"{path}: cannot write the estimate ({exc.strerror or exc})") from None
+
+
+def run(args: argparse.Namespace) -> int:
+    from nearlight.capture import read_capture
+    from nearlight.estimator.api import estimate
+
+    options = parse_options(args.option)
+    capture = read_capture(args.capture)
+    est = estimate(capture, method=args.method, **options)
+    pos = ", ".join(f"{v:.4f}" for v in est.lamp_position)
+    ks = ", ".join(f"{v:.4g}" for v in est.ks)
+    print(f"{est.method}: lamp ({pos}) m  ks ({ks})  sigma {est.sigma:.4f} rad  "
+          f"[{est.timings.get('total', float('nan')):.2f} s]")
+    if args.json:
+        _write_json(est.to_dict(), Path(args.json))
+    if args.plot:
+        from nearlight.estimator.plot import plot_estimate
+
+        plot_estimate(capture, est, args.plot)
+    sys.stdout.flush()
+    return 0
