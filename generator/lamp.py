@@ -1,15 +1,22 @@
-"""The lamp: a point source behind an ideal linear polarizer.
+"""The lamp: a point source behind an ideal linear polarizer filter.
+
+The filter is a flat sheet right in front of the lamp, facing the object
+(normal: lamp → ``object.position``), with its transmission axis
+``polarizer_axis`` projected into the sheet's plane (:func:`filter_axes`). For
+rays leaving the lamp obliquely through the sheet, the effective transmission
+axis follows Korger et al. 2013 ("The polarization properties of a tilted
+polarizer"), as Mitsuba's ``polarizer`` does: ``t_eff = k × â``, with ``â`` the
+sheet's absorbing axis projected normal to the ray direction ``k``.
 
 Two independent routes, which the tests compare:
 
-- ``nearlight_lamp`` (used for rendering): a point emitter whose emitted
-  Stokes vector is that of unpolarized light of intensity ``I`` after an
-  ideal linear polarizer with world axis ``axis`` (projected onto the plane
-  normal to each emitted ray): ``I/2 · [1, cos 2φ, sin 2φ, 0]`` in Mitsuba's
-  Stokes basis of the ray, with ``path``.
+- ``nearlight_lamp`` (used for rendering): a point emitter returning the
+  Stokes vector of unpolarized light of intensity ``I`` after that filter,
+  ``I/2 · [1, cos 2φ, sin 2φ, 0]`` in Mitsuba's Stokes basis of each ray;
+  works with ``path``.
 - :func:`polarizer_sheet`: Mitsuba's unpolarized ``point`` emitter with a
-  physical ``polarizer`` sheet just in front of it; shadow rays only pass a
-  sheet with the ``volpath`` integrator (DESIGN.md).
+  geometric ``polarizer`` rectangle 1 mm in front of it; shadow rays only pass
+  a sheet with the ``volpath`` integrator (DESIGN.md).
 """
 
 from __future__ import annotations
@@ -30,7 +37,8 @@ def register(mi: ModuleType) -> None:
             super().__init__(props)
             self.position = mi.ScalarPoint3f(props.get("position"))
             self.intensity = float(props.get("intensity", 1.0))
-            self.axis = mi.ScalarVector3f(props.get("axis"))
+            # absorbing axis of the filter, in its plane (normal to "facing")
+            self.absorb = mi.ScalarVector3f(filter_axes(props.get("axis"), props.get("facing"))[1])
             self.m_flags = mi.EmitterFlags.DeltaPosition
 
         def sample_direction(self, it, sample, active=True):
@@ -43,11 +51,11 @@ def register(mi: ModuleType) -> None:
             ds.dist = dr.norm(d)
             ds.d = d / ds.dist
             forward = -ds.d  # propagation direction of the emitted light
-            axis = mi.Vector3f(self.axis)
-            axis = dr.normalize(axis - dr.dot(axis, forward) * forward)
-            # The polarizer in its own frame (x = its axis), rotated into the ray's Stokes basis.
+            absorb = mi.Vector3f(self.absorb)
+            transmit = dr.cross(forward, dr.normalize(absorb - dr.dot(absorb, forward) * forward))
+            # The polarizer in its own frame (x = effective transmission axis), rotated into the ray's Stokes basis.
             pol = mi.mueller.rotate_mueller_basis_collinear(
-                mi.mueller.linear_polarizer(1.0), forward, axis, mi.mueller.stokes_basis(forward)
+                mi.mueller.linear_polarizer(1.0), forward, transmit, mi.mueller.stokes_basis(forward)
             )
             value = dr.select(active, self.intensity / dr.square(ds.dist), 0.0)
             return ds, mi.Spectrum(pol) * mi.depolarizer(mi.UnpolarizedSpectrum(value))
@@ -67,13 +75,35 @@ def register(mi: ModuleType) -> None:
     mi.register_emitter(PLUGIN, lambda props: PolarizedPointLamp(props))
 
 
-def polarized_lamp(position, intensity: float, axis) -> dict:
+def filter_axes(axis, facing) -> tuple[np.ndarray, np.ndarray]:
+    """Transmission and absorbing axes of the lamp's filter, unit vectors in its plane.
+
+    Parameters
+    ----------
+    axis : array_like, shape (3,)
+        The scene's ``lamp.polarizer_axis`` (world).
+    facing : array_like, shape (3,)
+        The filter's normal: from the lamp towards the object.
+
+    Returns
+    -------
+    transmit, absorb : ndarray, shape (3,)
+        ``transmit`` = ``axis`` projected into the filter's plane; ``absorb`` =
+        ``facing × transmit``.
+    """
+    n = np.asarray(facing, float) / np.linalg.norm(facing)
+    t = np.asarray(axis, float) - np.dot(axis, n) * n
+    t /= np.linalg.norm(t)
+    return t, np.cross(n, t)
+
+
+def polarized_lamp(position, intensity: float, axis, facing) -> dict:
     """Mitsuba dict of the lamp as a polarized point emitter (the rendering route)."""
     return {"type": PLUGIN, "position": list(map(float, position)), "intensity": float(intensity),
-            "axis": list(map(float, axis))}  # fmt: skip
+            "axis": list(map(float, axis)), "facing": list(map(float, facing))}  # fmt: skip
 
 
-def polarizer_sheet(mi: ModuleType, position, intensity: float, axis, toward, *, gap: float = 1e-3,
+def polarizer_sheet(mi: ModuleType, position, intensity: float, axis, facing, *, gap: float = 1e-3,
                     half_size: float = 0.05) -> dict[str, dict]:  # fmt: skip
     """Mitsuba dicts of the lamp as an unpolarized point light behind a polarizer sheet.
 
@@ -84,8 +114,8 @@ def polarizer_sheet(mi: ModuleType, position, intensity: float, axis, toward, *,
         Lamp position (metres) and polarizer axis (world).
     intensity : float
         Radiant intensity before the polarizer, one channel.
-    toward : array_like, shape (3,)
-        A point the sheet faces (e.g. the object's centre).
+    facing : array_like, shape (3,)
+        The sheet's normal (from the lamp towards the object).
     gap, half_size : float
         Distance from the lamp to the sheet and the sheet's half width, metres:
         a 1 mm gap and 5 cm half width cover 88° around ``toward``.
@@ -96,11 +126,8 @@ def polarizer_sheet(mi: ModuleType, position, intensity: float, axis, toward, *,
         ``{"lamp": point emitter, "lamp_sheet": polarizer rectangle}``; render with ``volpath``.
     """
     position = np.asarray(position, float)
-    normal = np.asarray(toward, float) - position
-    normal /= np.linalg.norm(normal)
-    x = np.asarray(axis, float) - np.dot(axis, normal) * normal
-    x /= np.linalg.norm(x)
-    y = np.cross(normal, x)
+    normal = np.asarray(facing, float) / np.linalg.norm(facing)
+    x, y = filter_axes(axis, normal)  # Mitsuba's polarizer absorbs along its local y
     frame = np.eye(4)
     frame[:3, 0], frame[:3, 1], frame[:3, 2] = x * half_size, y * half_size, normal
     frame[:3, 3] = position + gap * normal

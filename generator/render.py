@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import os
 import tempfile
 from pathlib import Path
@@ -40,6 +39,7 @@ import numpy as np
 
 from nearlight.capture import Camera, Capture
 from nearlight.errors import UserError
+from nearlight.generator.lamp import filter_axes
 from nearlight.generator.scene import MitsubaMaterial, Scene
 
 #: Bump when a change alters rendered values (invalidates caches).
@@ -125,12 +125,12 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
     from nearlight.generator import lamp
 
     intensity = 1.0 if channel is None else scene.lamp.intensity[channel]
+    facing = scene.lamp_facing
     if lamp_route == "emitter":
-        lamps = {"lamp": lamp.polarized_lamp(scene.lamp.position, intensity, scene.lamp.polarizer_axis)}
+        lamps = {"lamp": lamp.polarized_lamp(scene.lamp.position, intensity, scene.lamp.polarizer_axis, facing)}
         integrator = {"type": "path", "max_depth": scene.capture.max_depth}
     else:
-        lamps = lamp.polarizer_sheet(mi, scene.lamp.position, intensity, scene.lamp.polarizer_axis,
-                                     scene.object.position)  # fmt: skip
+        lamps = lamp.polarizer_sheet(mi, scene.lamp.position, intensity, scene.lamp.polarizer_axis, facing)
         integrator = {"type": "volpath", "max_depth": scene.capture.max_depth}
     if stokes:
         integrator = {"type": "stokes", "integrator": integrator}
@@ -376,7 +376,7 @@ def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Captur
         N=N,
         stack=analyzer_stack(full, angles).astype(np.float32),
         analyzer_angles_deg=angles,
-        lamp_polarizer_axis=np.asarray(scene.lamp.polarizer_axis, float) / math.hypot(*scene.lamp.polarizer_axis),
+        lamp_polarizer_axis=filter_axes(scene.lamp.polarizer_axis, scene.lamp_facing)[0],
         truth={
             "lamp_position": list(scene.lamp.position),
             "lamp_intensity": list(scene.lamp.intensity),

@@ -217,7 +217,8 @@ MaterialSpec = Annotated[Union[TorranceSparrow, Ward, MitsubaMaterial], Field(di
 
 class LampSpec(_Model):
     """Point lamp of radiant intensity ``intensity`` (W/sr per channel, before the
-    polarizer) behind an ideal linear polarizer with world axis ``polarizer_axis``."""
+    polarizer) behind an ideal linear polarizer filter facing the object, whose
+    axis is ``polarizer_axis`` (world) projected into the filter's plane."""
 
     position: Vec3
     intensity: RGB = (1.0, 1.0, 1.0)
@@ -265,6 +266,26 @@ class Scene(_Model):
     lamp: LampSpec
     capture: CaptureSpec = Field(default_factory=CaptureSpec)
     _source: str = PrivateAttr(default="<scene>")
+
+    @model_validator(mode="after")
+    def _lamp_filter(self) -> Scene:
+        facing = np.subtract(self.object.position, self.lamp.position)
+        if not np.linalg.norm(facing) > 0:
+            raise ValueError("lamp.position: must differ from object.position (the lamp's filter faces the object)")
+        n = facing / np.linalg.norm(facing)
+        a = np.asarray(self.lamp.polarizer_axis, float) / np.linalg.norm(self.lamp.polarizer_axis)
+        if np.linalg.norm(a - np.dot(a, n) * n) < 1e-3:
+            raise ValueError(
+                "lamp.polarizer_axis: points from the lamp at the object; the filter faces the object, "
+                "so its axis must lie across that direction"
+            )
+        return self
+
+    @property
+    def lamp_facing(self) -> np.ndarray:
+        """Normal of the lamp's polarizer filter: from the lamp towards ``object.position``."""
+        facing = np.subtract(self.object.position, self.lamp.position)
+        return facing / np.linalg.norm(facing)
 
     @property
     def source(self) -> str:
@@ -358,7 +379,7 @@ def _describe(exc: ValidationError) -> str:
         loc.pop()
         msg = f"too few items (expected {int(err['loc'][-1]) + 1} or more)"
         err = {**err, "type": "too_short", "input": None}
-    key = ".".join(loc) or "(top level)"
+    key = ".".join(loc)
     if err["type"] == "extra_forbidden":
         msg = "unknown key"
     elif err["type"] == "missing":
@@ -366,7 +387,7 @@ def _describe(exc: ValidationError) -> str:
     got = err.get("input")
     shown = "" if got is None or err["type"] in ("extra_forbidden", "missing") or isinstance(got, dict) else f" (got {got!r})"
     more = len(exc.errors()) - 1
-    return f"{key}: {msg}{shown}" + (f" [and {more} more error{'s' * (more > 1)}]" if more else "")
+    return (f"{key}: " if key else "") + f"{msg}{shown}" + (f" [and {more} more error{'s' * (more > 1)}]" if more else "")
 
 
 def euler_rotation(rotation_deg: Vec3) -> np.ndarray:
