@@ -287,6 +287,12 @@ class Scene(_Model):
         facing = np.subtract(self.object.position, self.lamp.position)
         return facing / np.linalg.norm(facing)
 
+    def __eq__(self, other: object) -> bool:  # the source file name is not part of the scene
+        return isinstance(other, Scene) and self.model_dump() == other.model_dump()
+
+    def __hash__(self) -> int:
+        return hash(repr(self.model_dump()))
+
     @property
     def source(self) -> str:
         """Where the scene came from (file name, or ``<scene>``), for messages."""
@@ -368,7 +374,9 @@ def _set_dotted(data: dict[str, Any], key: str, value: Any, name: str) -> None:
 
 def _describe(exc: ValidationError) -> str:
     """One line for the first validation error: dotted key, message, offending input."""
-    err = exc.errors(include_url=False)[0]
+    # A misspelt key shows as "unknown key" plus "missing": report the unknown key first.
+    errors = sorted(exc.errors(include_url=False), key=lambda e: {"extra_forbidden": 0, "missing": 2}.get(e["type"], 1))
+    err = errors[0]
     loc: list[str] = []
     for i, part in enumerate(err["loc"]):
         if i > 0 and part in _TAGS and err["loc"][i - 1] in ("object", "material"):
