@@ -146,12 +146,16 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
 # --------------------------------------------------------------------------- tracing
 
 
-def pixel_rays(mi: ModuleType, sensor: Any) -> Any:
-    """Rays through every pixel centre, row-major from the top-left pixel."""
+#: Most rays traced in one wavefront (several samples per pixel go in one call).
+MAX_WAVEFRONT = 1 << 21
+
+
+def pixel_rays(mi: ModuleType, sensor: Any, repeat: int = 1) -> Any:
+    """Rays through every pixel centre, row-major from the top-left pixel, the image ``repeat`` times over."""
     import drjit as dr
 
     w, h = sensor.film().size()
-    idx = dr.arange(mi.UInt32, w * h)
+    idx = dr.arange(mi.UInt32, w * h * repeat) % (w * h)
     pos = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
     ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
     return ray
@@ -159,6 +163,18 @@ def pixel_rays(mi: ModuleType, sensor: Any) -> Any:
 
 def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=None) -> np.ndarray:
     """Stokes S0, S1, S2 at every pixel centre, in the sensor frame.
+
+    Parameters
+    ----------
+    mi : module
+    mscene : mitsuba.Scene
+        With a ``path`` or ``volpath`` integrator (not ``stokes``).
+    spp : int
+        Samples per pixel, all through the pixel centre.
+    seed : int
+        Sampler seed.
+    tick : callable, optional
+        Called with the number of samples per pixel done, for progress bars.
 
     Returns
     -------
@@ -169,24 +185,26 @@ def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=N
 
     sensor = mscene.sensors()[0]
     w, h = sensor.film().size()
-    ray = pixel_rays(mi, sensor)
     integrator = mscene.integrator()
-    sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(seed, w * h)
-    # As Mitsuba's stokes integrator: rotate from the ray's implicit basis to the sensor's x axis.
     vertical = sensor.world_transform() @ mi.Vector3f(0.0, 1.0, 0.0)
-    to_sensor = mi.Spectrum(mi.mueller.rotate_stokes_basis(-ray.d, mi.mueller.stokes_basis(-ray.d),
-                                                           dr.cross(ray.d, vertical)))  # fmt: skip
+    batch = max(1, min(spp, MAX_WAVEFRONT // (w * h)))
     total = np.zeros((3, h * w))
-    for _ in range(spp):
+    done = 0
+    while done < spp:
+        n = min(batch, spp - done)
+        ray = pixel_rays(mi, sensor, n)
+        sampler = mi.load_dict({"type": "independent"})
+        sampler.seed(seed + done, w * h * n)
         spec, _, _ = integrator.sample(mscene, sampler, ray, None, True)
-        spec = to_sensor * spec
+        # As Mitsuba's stokes integrator: rotate from the ray's implicit basis to the sensor's x axis.
+        to_sensor = mi.mueller.rotate_stokes_basis(-ray.d, mi.mueller.stokes_basis(-ray.d), dr.cross(ray.d, vertical))
+        spec = mi.Spectrum(to_sensor) * spec
         stokes = [spec[i, 0] for i in range(3)]
         dr.eval(stokes)
-        total += np.stack([np.asarray(s, dtype=float).reshape(-1) for s in stokes])
-        sampler.advance()
+        total += np.stack([np.asarray(c, dtype=float).reshape(n, h * w).sum(0) for c in stokes])
+        done += n
         if tick is not None:
-            tick()
+            tick(n)
     return (total / spp).reshape(3, h, w)
 
 
@@ -304,16 +322,16 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
         passes = [(p, c) for c in range(3) for p in (("specular", "diffuse", "full") if analytic else ("full",))]
     spp = scene.capture.spp
     with tempfile.TemporaryDirectory(prefix="nearlight-") as scratch, tqdm(
-        total=len(passes) * spp, desc="render", unit="pass", disable=not progress, leave=False
+        total=len(passes) * spp, desc="render", unit="sample", disable=not progress, leave=False
     ) as bar:
-        geometry = mi.load_dict(scene_dict(mi, scene, part="full", channel=0, scratch=Path(scratch)))
-        P, N = surface(mi, geometry)
-        _check_geometry(mi, scene, geometry, P)
-        to_world = np.asarray(geometry.sensors()[0].world_transform().matrix, float).reshape(4, 4)
         stokes: dict[str, np.ndarray] = {}
-        for part, channel in passes:
+        for i, (part, channel) in enumerate(passes):
             mscene = mi.load_dict(scene_dict(mi, scene, part=part, channel=channel, scratch=Path(scratch)))
-            s = trace_stokes(mi, mscene, spp=spp, tick=lambda: bar.update(1))
+            if i == 0:  # every pass has the same geometry: check it before any rendering
+                P, N = surface(mi, mscene)
+                _check_geometry(mi, scene, mscene, P)
+                to_world = np.asarray(mscene.sensors()[0].world_transform().matrix, float).reshape(4, 4)
+            s = trace_stokes(mi, mscene, spp=spp, tick=bar.update)
             if channel is None:
                 scale = np.asarray(scene.lamp.intensity) * np.asarray(
                     scene.material.specular if part == "specular" else scene.material.kd
