@@ -32,6 +32,13 @@ MODELS = ("torrance_sparrow", "ward")
 POLARIZATIONS = ("ideal", "fresnel")
 
 
+def zero_struct(mi: ModuleType, cls: type):
+    """A zero-initialised Mitsuba record: ``dr.zeros`` in JIT variants, the constructor in scalar ones."""
+    import drjit as dr
+
+    return cls() if mi.variant().startswith("scalar") else dr.zeros(cls)
+
+
 def register(mi: ModuleType) -> None:
     """Register ``nearlight_bsdf`` with the active Mitsuba variant."""
     import drjit as dr
@@ -109,7 +116,7 @@ def register(mi: ModuleType) -> None:
             return self.eval(ctx, si, wo, active), self.pdf(ctx, si, wo, active)
 
         def sample(self, ctx, si, sample1, sample2, active=True):
-            bs = dr.zeros(mi.BSDFSample3f)
+            bs = zero_struct(mi, mi.BSDFSample3f)
             bs.wo = mi.warp.square_to_cosine_hemisphere(sample2)
             bs.pdf = mi.warp.square_to_cosine_hemisphere_pdf(bs.wo)
             bs.eta = 1.0

@@ -32,6 +32,8 @@ def register(mi: ModuleType) -> None:
     """Register ``nearlight_lamp`` with the active Mitsuba variant."""
     import drjit as dr
 
+    from nearlight.generator.bsdfs import zero_struct
+
     class PolarizedPointLamp(mi.Emitter):
         def __init__(self, props):
             super().__init__(props)
@@ -42,7 +44,7 @@ def register(mi: ModuleType) -> None:
             self.m_flags = mi.EmitterFlags.DeltaPosition
 
         def sample_direction(self, it, sample, active=True):
-            ds = dr.zeros(mi.DirectionSample3f)
+            ds = zero_struct(mi, mi.DirectionSample3f)
             ds.p = mi.Point3f(self.position)
             ds.time = it.time
             ds.pdf = 1.0

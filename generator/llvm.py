@@ -12,6 +12,9 @@ with:
   is found. All spectra the generator builds are wavelength-independent, so any
   one wavelength of a spectral render is the exact mono value. Slow: pixels
   are traced one by one in Python.
+
+``NEARLIGHT_MITSUBA_VARIANT`` (one of the two names) forces a variant, e.g. to
+check the fallback on a machine that has LLVM.
 """
 
 from __future__ import annotations
@@ -55,14 +58,21 @@ def mitsuba() -> ModuleType:
         ``mitsuba``; ``mitsuba.variant()`` is :data:`LLVM_VARIANT` or
         :data:`SCALAR_VARIANT`.
     """
+    forced = os.environ.get("NEARLIGHT_MITSUBA_VARIANT")
+    if forced not in (None, "", LLVM_VARIANT, SCALAR_VARIANT):
+        from nearlight.errors import UserError
+
+        raise UserError(f"NEARLIGHT_MITSUBA_VARIANT: expected {LLVM_VARIANT} or {SCALAR_VARIANT}, got {forced!r}")
     user_set = "DRJIT_LIBLLVM_PATH" in os.environ
-    if not user_set:
+    if not user_set and forced != SCALAR_VARIANT:
         lib = find_libllvm()
         if lib is not None:
             os.environ["DRJIT_LIBLLVM_PATH"] = lib
     import mitsuba as mi
 
-    if user_set or "DRJIT_LIBLLVM_PATH" in os.environ:
+    if forced:
+        mi.set_variant(forced)
+    elif user_set or "DRJIT_LIBLLVM_PATH" in os.environ:
         mi.set_variant(LLVM_VARIANT)
     else:
         warnings.warn(

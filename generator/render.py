@@ -183,7 +183,11 @@ def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=N
     """
     import drjit as dr
 
+    from nearlight.generator.llvm import is_scalar
+
     sensor = mscene.sensors()[0]
+    if is_scalar(mi):
+        return _trace_stokes_scalar(mi, mscene, spp=spp, seed=seed, tick=tick)
     w, h = sensor.film().size()
     integrator = mscene.integrator()
     vertical = sensor.world_transform() @ mi.Vector3f(0.0, 1.0, 0.0)
@@ -208,14 +212,52 @@ def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=N
     return (total / spp).reshape(3, h, w)
 
 
-def surface(mi: ModuleType, mscene: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Exact ``P`` and ``N`` ``[H, W, 3]`` at pixel centres (NaN where no surface)."""
+def _scalar_rays(mi: ModuleType, sensor: Any) -> list:
+    """Pixel-centre rays one by one (scalar variants), row-major."""
+    w, h = sensor.film().size()
+    return [sensor.sample_ray(0.0, 0.5, mi.Point2f((x + 0.5) / w, (y + 0.5) / h), mi.Point2f(0.5))[0]
+            for y in range(h) for x in range(w)]  # fmt: skip
+
+
+def _trace_stokes_scalar(mi: ModuleType, mscene: Any, *, spp: int, seed: int, tick) -> np.ndarray:
+    """:func:`trace_stokes` for scalar spectral variants: every spectrum is flat, so wavelength 0 is exact."""
+    import drjit as dr
+
     sensor = mscene.sensors()[0]
     w, h = sensor.film().size()
-    si = mscene.ray_intersect(pixel_rays(mi, sensor))
-    valid = np.asarray(si.is_valid(), dtype=bool).reshape(h, w)
-    P = np.stack([np.asarray(c, float) for c in si.p], -1).reshape(h, w, 3)
-    N = np.stack([np.asarray(c, float) for c in si.sh_frame.n], -1).reshape(h, w, 3)
+    integrator = mscene.integrator()
+    vertical = sensor.world_transform() @ mi.Vector3f(0.0, 1.0, 0.0)
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(seed, 1)
+    out = np.zeros((3, h * w))
+    for k, ray in enumerate(_scalar_rays(mi, sensor)):
+        rot = mi.Spectrum(mi.mueller.rotate_stokes_basis(-ray.d, mi.mueller.stokes_basis(-ray.d),
+                                                         dr.cross(ray.d, vertical)))  # fmt: skip
+        for _ in range(spp):
+            spec = rot * integrator.sample(mscene, sampler, ray, None, True)[0]
+            out[:, k] += [spec[i, 0][0] for i in range(3)]
+            sampler.advance()
+    if tick is not None:
+        tick(spp)
+    return (out / spp).reshape(3, h, w)
+
+
+def surface(mi: ModuleType, mscene: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Exact ``P`` and ``N`` ``[H, W, 3]`` at pixel centres (NaN where no surface)."""
+    from nearlight.generator.llvm import is_scalar
+
+    sensor = mscene.sensors()[0]
+    w, h = sensor.film().size()
+    if is_scalar(mi):
+        hits = [mscene.ray_intersect(ray) for ray in _scalar_rays(mi, sensor)]
+        valid = np.array([bool(si.is_valid()) for si in hits]).reshape(h, w)
+        P = np.array([list(si.p) for si in hits], float).reshape(h, w, 3)
+        N = np.array([list(si.sh_frame.n) for si in hits], float).reshape(h, w, 3)
+    else:
+        si = mscene.ray_intersect(pixel_rays(mi, sensor))
+        valid = np.asarray(si.is_valid(), dtype=bool).reshape(h, w)
+        P = np.stack([np.asarray(c, float) for c in si.p], -1).reshape(h, w, 3)
+        N = np.stack([np.asarray(c, float) for c in si.sh_frame.n], -1).reshape(h, w, 3)
     P[~valid] = np.nan
     N[~valid] = np.nan
     return P, N

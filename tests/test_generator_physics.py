@@ -248,3 +248,45 @@ def test_mitsuba_material_passes_through_per_channel():
     assert np.all(S0[:, 0] > S0[:, 1]) and np.all(S0[:, 1] > S0[:, 2])
     dolp = np.hypot(cap.extra["S1"], cap.extra["S2"])[cap.surface_mask] / S0
     assert dolp.max() <= 1 + 1e-5 and dolp.max() > 0.1  # pplastic's specular lobe keeps the lamp's polarization
+
+
+SCALAR_SCRIPT = """
+import sys, warnings
+import numpy as np
+from nearlight.generator import llvm, load_scene, render_clean
+if sys.argv[1] == "no-llvm":
+    llvm.find_libllvm = lambda: None  # as on a machine without LLVM >= 17
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    mi = llvm.mitsuba()
+print(mi.variant(), [w.category.__name__ for w in caught])
+scene = load_scene(sys.argv[2], overrides={"camera.resolution": [16, 12], "material.polarization": "fresnel"})
+cap = render_clean(scene, progress=False)
+np.save(sys.argv[3], np.stack([cap.extra[k] for k in ("S0", "S1", "S2")]))
+"""
+
+
+@pytest.mark.parametrize("how", ["forced", "no-llvm"])
+def test_scalar_fallback_matches_llvm(tmp_path, how):
+    # Without LLVM >= 17 the generator warns and renders with scalar_spectral_polarized (flat spectra: wavelength 0
+    # is the exact mono value). Same physics, other code path: equal to float32 precision (measured 2e-5 abs at
+    # S0 up to 2.0, i.e. 1e-5 relative).
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("DRJIT_LIBLLVM_PATH", "NEARLIGHT_MITSUBA_VARIANT")}
+    if how == "forced":
+        env["NEARLIGHT_MITSUBA_VARIANT"] = "scalar_spectral_polarized"
+    out = tmp_path / "s.npy"
+    run = subprocess.run([sys.executable, "-c", SCALAR_SCRIPT, how, str(SCENES / "ts_board.yaml"), str(out)],
+                         env=env, capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert run.returncode == 0, run.stderr[-2000:]
+    variant, _, warned = run.stdout.strip().splitlines()[0].partition(" ")
+    assert variant == "scalar_spectral_polarized"
+    assert ("ScalarFallbackWarning" in warned) == (how == "no-llvm")
+    scene = load_scene(SCENES / "ts_board.yaml", overrides={"camera.resolution": [16, 12],
+                                                             "material.polarization": "fresnel"})  # fmt: skip
+    cap = render_clean(scene, progress=False)
+    want = np.stack([cap.extra[k] for k in ("S0", "S1", "S2")])
+    assert np.abs(np.load(out) - want).max() <= 1e-4 * want[0].max()
