@@ -14,7 +14,9 @@ How a capture is rendered
 - The integrator is Mitsuba's ``path``; its Mueller-matrix result is rotated
   into the sensor's Stokes frame exactly as Mitsuba's ``stokes`` integrator
   does (x axis = image horizontal), giving S0, S1, S2. One render serves every
-  analyzer angle: ``I(θ) = ½ (S0 + S1 cos 2θ + S2 sin 2θ)``.
+  analyzer angle: ``I(θ) = ½ (S0 + S1 cos 2θ + S2 sin 2θ)``, θ measured
+  counter-clockwise from the image's rightward horizontal as the image is
+  viewed (checked against a physical polarizer sheet in front of the camera).
 - Specular-only (``kd = 0``) and diffuse-only (``ks = 0``) renders give
   ``truth_specular`` / ``truth_diffuse``. With direct light only the image is
   linear in ``ks``, ``kd`` and the lamp intensity, so the two parts are
@@ -63,7 +65,13 @@ def sensor_dict(mi: ModuleType, scene: Scene) -> dict:
         "fov": cam.fov_x_deg,
         "fov_axis": "x",
         "to_world": mi.ScalarTransform4f().look_at(origin=cam.position, target=cam.look_at, up=cam.up),
-        "film": {"type": "hdrfilm", "width": cam.width, "height": cam.height, "rfilter": {"type": "box"}, "pixel_format": "luminance"},
+        "film": {
+            "type": "hdrfilm",
+            "width": cam.width,
+            "height": cam.height,
+            "rfilter": {"type": "box"},
+            "pixel_format": "luminance",
+        },
         "sampler": {"type": "independent", "sample_count": scene.capture.spp},
     }
 
@@ -443,5 +451,12 @@ def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Captur
             "bsdf": scene.material.truth(),
         },
         extra=extra,
-        meta={"generator": {"scene": scene.model_dump(mode="json"), "render_key": key, "pixel_sampling": "centre"}},
+        meta={
+            "generator": {
+                "scene": scene.model_dump(mode="json"),
+                "render_key": key,
+                "pixel_sampling": "centre",
+                "analyzer_angle": "counter-clockwise from the image's rightward horizontal, as viewed",
+            }
+        },
     )

@@ -17,7 +17,16 @@ from typing import Annotated, Any, Literal, Union
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from nearlight.errors import UserError
 
@@ -302,7 +311,9 @@ class Scene(_Model):
 _TAGS = {"board", "sphere", "cylinder", "bookend", "torus", "mesh", "torrance_sparrow", "ward", "mitsuba"}
 
 
-def load_scene(source: str | os.PathLike | Mapping[str, Any], *, overrides: Iterable[str] | Mapping[str, Any] = ()) -> Scene:
+def load_scene(
+    source: str | os.PathLike | Mapping[str, Any], *, overrides: Iterable[str] | Mapping[str, Any] = ()
+) -> Scene:
     """Load and validate a scene.
 
     Parameters
@@ -393,9 +404,11 @@ def _describe(exc: ValidationError) -> str:
     elif err["type"] == "missing":
         msg = "missing (required)"
     got = err.get("input")
-    shown = "" if got is None or err["type"] in ("extra_forbidden", "missing") or isinstance(got, dict) else f" (got {got!r})"
+    quiet = got is None or isinstance(got, dict) or err["type"] in ("extra_forbidden", "missing")
+    shown = "" if quiet else f" (got {got!r})"
     more = len(exc.errors()) - 1
-    return (f"{key}: " if key else "") + f"{msg}{shown}" + (f" [and {more} more error{'s' * (more > 1)}]" if more else "")
+    tail = f" [and {more} more error{'s' * (more > 1)}]" if more else ""
+    return (f"{key}: " if key else "") + f"{msg}{shown}{tail}"
 
 
 def euler_rotation(rotation_deg: Vec3) -> np.ndarray:

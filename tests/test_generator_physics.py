@@ -175,7 +175,8 @@ def test_analyzer_stack_matches_a_polarizer_sheet_at_the_camera(mi):
     # clip), its axis at θ counter-clockwise from the image's horizontal, rendered with volpath. It must equal
     # ½(S0 + S1 cos 2θ + S2 sin 2θ) from the Stokes render (and fixes the sign convention of θ). Mitsuba's sheet
     # treats the up-to-20°-oblique rays as a tilted filter, our Stokes frame does not: measured max deviation
-    # 0.36 % of the unfiltered peak (S0.max()); deterministic (pixel-centre rays), tolerance 0.5 %. Compared 1 px inside the board's outline, where rays spawned at the sheet may hit or miss.
+    # 0.36 % of the unfiltered peak (S0.max()); deterministic (pixel-centre rays), tolerance 0.5 %. Compared 1 px
+    # inside the board's outline, where rays spawned at the sheet may hit or miss.
     from nearlight.generator import render
 
     scene = load_scene(_board_dict(kd=[0.3, 0.3, 0.3]))
@@ -191,8 +192,8 @@ def test_analyzer_stack_matches_a_polarizer_sheet_at_the_camera(mi):
         frame[:3, 0], frame[:3, 1], frame[:3, 2] = 0.05 * x, 0.05 * np.cross(fwd, x), fwd
         frame[:3, 3] = np.asarray(scene.camera.position) + 0.03 * fwd
         sheet = {"type": "rectangle", "to_world": mi.ScalarTransform4f(frame.tolist()), "bsdf": {"type": "polarizer"}}
-        got, _ = _trace(mi, scene.model_copy(update={"capture": scene.capture.model_copy(update={"max_depth": 3})}),
-                        route="emitter", extra={"analyzer": sheet, "integrator": {"type": "volpath", "max_depth": 3}})  # fmt: skip
+        volpath = {"type": "volpath", "max_depth": 3}  # the sheet is one more vertex on camera paths
+        got, _ = _trace(mi, scene, extra={"analyzer": sheet, "integrator": volpath})
         want = render.analyzer_stack(S[..., None], [theta])[0, ..., 0]
         assert np.abs(got[0] - want)[inside].max() <= 0.005 * S[0].max(), theta
 
@@ -240,8 +241,8 @@ def test_interreflection_in_the_bookend_adds_light():
 def test_mitsuba_material_passes_through_per_channel():
     # A Mitsuba BSDF dict (model mismatch studies): rgb values are rendered per channel; no truth lobes exist.
     doc = _board_dict()
-    doc["material"] = {"model": "mitsuba", "bsdf": {"type": "pplastic", "alpha": 0.1,
-                                                    "diffuse_reflectance": {"type": "rgb", "value": [0.6, 0.3, 0.1]}}}  # fmt: skip
+    rgb = {"type": "rgb", "value": [0.6, 0.3, 0.1]}
+    doc["material"] = {"model": "mitsuba", "bsdf": {"type": "pplastic", "alpha": 0.1, "diffuse_reflectance": rgb}}
     cap = render_clean(load_scene(doc), progress=False)
     assert "truth_specular" not in cap.extra and cap.truth["bsdf"]["model"] == "mitsuba"
     S0 = cap.extra["S0"][cap.surface_mask]
