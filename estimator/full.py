@@ -150,7 +150,7 @@ def full_estimate(
     """
     if loss not in LOSSES:
         raise UserError(f"option loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
-    init, obs = stage_one(capture, **init_options)
+    init, obs = stage_one(capture, strict_t_max=False, **init_options)
     clock = time.perf_counter()
     use = fit_pixels(obs, max_pixels=int(max_pixels), saturation=saturation)
     model = PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use])

@@ -40,9 +40,11 @@ class Observation:
     surface : ndarray, shape (H, W), bool
         Pixels with a finite position and normal facing the camera.
     mask : ndarray, shape (H, W), bool
-        Specular pixels: surface, every channel > 0 and mean ≥ ``threshold`` × peak.
+        Specular pixels: surface, every channel > 0, mean ≥ ``threshold`` ×
+        peak, and not an isolated hot pixel (> 2 × its 3×3 median).
     peak : tuple of int
-        (row, column) of the brightest specular pixel.
+        (row, column) of the brightest mean specular, isolated hot pixels
+        excluded (see :func:`_spikes`, :func:`_peak_pixel`).
     camera_position : ndarray, shape (3,)
     scale : float
         Distance from the camera to the peak's surface point, metres: the
@@ -117,6 +119,26 @@ def specular_image(capture: Capture, *, separation: str = "fit") -> np.ndarray:
     return spec
 
 
+def _spikes(lum: np.ndarray, surface: np.ndarray) -> np.ndarray:
+    """Isolated hot pixels: more than twice the 3×3 median of their neighbourhood."""
+    from scipy.ndimage import median_filter
+
+    med = median_filter(np.where(surface, lum, 0.0), size=3, mode="nearest")
+    return surface & (lum > 2.0 * np.maximum(med, 0.0))
+
+
+def _peak_pixel(lum: np.ndarray, usable: np.ndarray) -> tuple[int, int]:
+    """Brightest usable pixel; when several share the maximum (a clipped
+    highlight), the one nearest their centroid."""
+    value = np.where(usable, lum, -np.inf)
+    top = value >= value.max() - 1e-12 * abs(value.max())
+    rows, cols = np.nonzero(top)
+    if len(rows) == 1:
+        return int(rows[0]), int(cols[0])
+    k = int(np.argmin((rows - rows.mean()) ** 2 + (cols - cols.mean()) ** 2))
+    return int(rows[k]), int(cols[k])
+
+
 def observe(capture: Capture, *, separation: str = "fit", threshold: float = 0.05) -> Observation:
     """Reduce a capture to an :class:`Observation`.
 
@@ -140,11 +162,12 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = 0.0
     spec = specular_image(capture, separation=separation)
     spec = np.where(surface[..., None], spec, 0.0)
     lum = spec.mean(axis=-1)
-    peak = np.unravel_index(int(np.argmax(np.where(surface, lum, -np.inf))), lum.shape)
+    usable = surface & ~_spikes(lum, surface)
+    peak = _peak_pixel(lum, usable)
     peak_value = lum[peak]
     if not surface.any() or not peak_value > 0:
         raise UserError(f"{capture.name}: specular: no specular pixel on the surface (all specular radiance <= 0)")
-    mask = surface & np.all(spec > 0, axis=-1) & (lum >= threshold * peak_value)
+    mask = usable & np.all(spec > 0, axis=-1) & (lum >= threshold * peak_value)
     if mask.sum() < MIN_SPECULAR_PIXELS:
         raise UserError(
             f"{capture.name}: specular: only {int(mask.sum())} pixels above threshold {threshold} x peak "

@@ -172,6 +172,7 @@ def stage_one(
     dt: float | None = None,
     search: str = "fast",
     n_coarse: int = 48,
+    strict_t_max: bool = True,
 ) -> tuple[Estimate, Observation]:
     """The paper's first stage (§3.2–3.3): the estimate and the observation it used.
 
@@ -193,6 +194,9 @@ def stage_one(
         coarse grid and Brent refinement, same t to within Δt.
     n_coarse : int
         Coarse grid size of the fast search.
+    strict_t_max : bool
+        Raise when E_p is smallest at t_max (default); ``full`` turns this
+        off because its multi-start does not rely on t*.
 
     Raises
     ------
@@ -210,10 +214,10 @@ def stage_one(
         raise UserError(f"option search: expected one of {', '.join(SEARCHES)}, got {search!r}")
     kwargs = {"n_coarse": int(n_coarse)} if search == "fast" else {}
     found = SEARCHES[search](ray.ep, t_max=t_max, dt=dt, **kwargs)
-    if found["k"] >= found["k_max"]:
+    if strict_t_max and found["k"] >= found["k_max"]:
         raise UserError(
-            f"{capture.name}: option t_max = {t_max:.4g} m cannot reach the lamp: E_p(t) is smallest at t_max; "
-            "raise --option t_max=..."
+            f"{capture.name}: option t_max = {t_max:.4g} m cannot reach the lamp: E_p(t) is smallest at t_max "
+            "(the lamp is farther, or the peak ray misses it); raise --option t_max=... or use --method full"
         )
     timings["t_search"] = time.perf_counter() - clock
     clock = time.perf_counter()

@@ -77,25 +77,37 @@ def test_fast_search_matches_plain_scan(kwargs):
     assert ray.evaluations - n_scan < n_scan / 20  # at least 20x fewer E_p evaluations
 
 
+PAPER_INIT_CASES = [
+    ("board", {"sigma": 0.06}, {}),
+    ("board", {"sigma": 0.1}, {}),
+    ("sphere", {"sigma": 0.1}, {}),
+    ("sphere", {"sigma": 0.06}, {"lamp_position": (0.1, 0.1, 0.6)}),
+    ("sphere", {"sigma": 0.1}, {"lamp_position": (0.1, 0.1, 0.6)}),
+    ("sphere", {"sigma": 0.1}, {"lamp_position": (0.2, -0.2, 0.4)}),
+]
+
+
 def test_paper_init_reaches_the_papers_class_of_error():
     # End to end the ray starts at the peak pixel, which is not the mirror point: the 1/cos θr
-    # and 1/r² factors move the intensity peak (here by 1.7° of ray direction on the board),
-    # and E_p(t) is so flat near its minimum that t moves a lot. Measured with this code
-    # (noise-free, 160x120): board 45 %, sphere 8 % of the lamp distance; the paper reports
-    # 9 % on its RADIANCE board. Bound: 60 %, i.e. "the right side of the scene", no better.
-    errs = {}
-    for shape in ("board", "sphere"):
-        cap = analytic_capture(shape=shape)
+    # and 1/r² factors move the intensity peak (0.5–2° of ray direction here), and E_p(t) is
+    # so flat near its minimum that t moves a lot. Measured with this code (noise-free,
+    # 160x120): board 52 %, 45 %; spheres 8 %, 11 %, 17 %, 15 % of the lamp distance; the paper
+    # reports 9 % on its RADIANCE board. Bounds: the best case is in the paper's class (< 12 %),
+    # the median is < 30 %, none is off by more than 60 %.
+    errs = []
+    for shape, lobe, kwargs in PAPER_INIT_CASES:
+        cap = analytic_capture(shape=shape, bsdf={**TS, **lobe}, **kwargs)
         est = initial_estimate(cap)
         lamp = np.array(cap.truth["lamp_position"])
         origin = np.asarray(est.diagnostics["ray_origin"])
-        errs[shape] = np.linalg.norm(est.lamp_position - lamp) / np.linalg.norm(lamp - origin)
+        errs.append(np.linalg.norm(est.lamp_position - lamp) / np.linalg.norm(lamp - origin))
         # the estimate lies on the peak ray by construction (eq. 9)
         d = est.lamp_position - origin
         np.testing.assert_allclose(d / np.linalg.norm(d), est.diagnostics["ray_direction"], atol=1e-12)
-    print("paper-init relative lamp error:", {k: round(v, 3) for k, v in errs.items()})
-    assert errs["board"] < 0.6 and errs["sphere"] < 0.6
-    assert errs["sphere"] < 0.15
+    print("paper-init relative lamp errors:", np.round(errs, 3))
+    assert min(errs) < 0.12
+    assert np.median(errs) < 0.3
+    assert max(errs) < 0.6
 
 
 @pytest.mark.parametrize("space", ["ratio", "radiance"])

@@ -1,0 +1,119 @@
+"""Method ``full`` (and the distant baseline) on analytic captures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from nearlight.estimator import estimate, render_specular
+from nearlight.estimator.fitting import central_jacobian
+from nearlight.estimator.full import PointLampModel
+from nearlight.synthetic import analytic_capture
+
+TS = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.06}
+
+
+def _rel_lamp_error(est, cap):
+    lamp = np.array(cap.truth["lamp_position"])
+    origin = np.asarray(est.diagnostics["ray_origin"])
+    return np.linalg.norm(est.lamp_position - lamp) / np.linalg.norm(lamp - origin)
+
+
+def test_jacobian_matches_central_differences():
+    cap = analytic_capture(width=64, height=48)
+    m = cap.surface_mask
+    model = PointLampModel(cap.P[m].astype(float), cap.N[m].astype(float), cap.camera.position,
+                           cap.extra["truth_specular"][m].astype(float))
+    x = np.array([0.07, 0.12, 0.33, 0.7, 0.6, 0.4, 0.09])
+    Jn = central_jacobian(model.residuals, x, np.full(7, 1e-7))
+    # central differences with h = 1e-7 on O(1)-curvature functions: error ~ h² + eps/h ≈ 1e-8.
+    assert np.max(np.abs(model.jacobian(x) - Jn)) <= 1e-6 * np.max(np.abs(Jn))
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {},
+        {"bsdf": TS},
+        {"shape": "sphere"},
+        {"shape": "sphere", "bsdf": TS, "lamp_position": (0.15, -0.1, 0.45)},
+        {"with_normals": False},
+    ],
+    ids=["board", "board-sharp", "sphere", "sphere-sharp", "board-normals-from-P"],
+)
+def test_full_recovers_lamp_and_reflectance_noise_free(kwargs):
+    cap = analytic_capture(width=128, height=96, **kwargs)
+    est = estimate(cap, method="full")
+    bsdf = cap.truth["bsdf"]
+    # Issue 3's bar: lamp within 0.1 % of its distance, σ and Ks within 1 %. The only error
+    # left is float32 storage of P, N and the stack (measured: ≤ 4e-6 relative); the sphere's
+    # start from paper-init is 92 % off, so this also exercises the multi-start.
+    assert _rel_lamp_error(est, cap) < 1e-3
+    assert est.sigma == pytest.approx(bsdf["sigma"], rel=0.01)
+    # Ks absorbs the intensity reaching the surface: lamp_intensity / 2 = 1.
+    np.testing.assert_allclose(est.ks, bsdf["ks"], rtol=0.01)
+    assert np.all(np.isfinite(est.covariance))
+
+
+def test_full_confidence_ellipsoid_is_calibrated():
+    # The separated specular image (the paper's own input) with white Gaussian noise of 1 % of
+    # the peak; 50 seeds. The true lamp must fall inside the 95 % ellipsoid of the position
+    # covariance in 85–99 % of trials (binomial sd at 95 % over 50 trials: 3.1 %, so 85 % is 3.2 sd below).
+    # n_starts=0: paper-init's start is inside the basin on this board (the multi-start is
+    # covered above), which keeps 50 fits to a few seconds.
+    rng = np.random.default_rng(7)
+    cap = analytic_capture(width=64, height=48, analyzer_angles_deg=None)
+    lamp = np.array(cap.truth["lamp_position"])
+    spec = cap.specular.astype(float)
+    noise = 0.01 * spec.max()
+    surface = cap.surface_mask[..., None]
+    limit = chi2.ppf(0.95, 3)
+    inside, m2 = 0, []
+    for _ in range(50):
+        noisy = cap.replace(specular=spec + surface * rng.normal(0.0, noise, spec.shape))
+        est = estimate(noisy, method="full", n_starts=0)
+        d = est.lamp_position - lamp
+        m2.append(d @ np.linalg.solve(est.covariance[:3, :3], d))
+        inside += m2[-1] <= limit
+    print(f"coverage {inside / 50:.3f}, mean Mahalanobis² {np.mean(m2):.2f} (expected 3)")
+    assert 0.85 <= inside / 50 <= 0.99
+
+
+def test_full_robust_to_saturation_and_outliers(rng):
+    # Clip the highlight at 70 % of its peak (a saturated sensor) and add 1 % of pixels of
+    # hot-pixel outliers; with saturation= and the robust loss, full still lands within 1 %.
+    cap = analytic_capture(width=80, height=60, analyzer_angles_deg=None, bsdf=TS)
+    spec = cap.specular.astype(float)
+    level = 0.7 * spec.max()
+    spec = np.minimum(spec, level)
+    hot = rng.random(spec.shape[:2]) < 0.01
+    spec[hot] += 0.5 * level
+    bad = cap.replace(specular=spec)
+    est = estimate(bad, method="full", saturation=level * 0.999)
+    assert _rel_lamp_error(est, cap) < 0.01
+    assert est.sigma == pytest.approx(TS["sigma"], rel=0.01)
+    naive = estimate(bad, method="full", loss="linear")
+    assert _rel_lamp_error(naive, cap) > 3 * _rel_lamp_error(est, cap)
+
+
+def test_truth_as_estimate_resynthesises_the_truth():
+    # STYLE 9: feed the truth in, expect the observed specular back (float32 storage only).
+    cap = analytic_capture(shape="sphere")
+    est = estimate(cap, method="full")
+    est.lamp_position = np.array(cap.truth["lamp_position"])
+    est.ks, est.sigma = np.array(cap.truth["bsdf"]["ks"]), cap.truth["bsdf"]["sigma"]
+    np.testing.assert_allclose(render_specular(cap, est), cap.extra["truth_specular"], rtol=1e-4, atol=1e-5)
+
+
+def test_distant_baseline_is_worse_than_full_on_a_near_scene():
+    cap = analytic_capture(shape="sphere")
+    obs = cap.extra["truth_specular"]
+    rmse = {}
+    for method in ("distant", "full"):
+        est = estimate(cap, method=method)
+        rmse[method] = float(np.sqrt(np.mean((render_specular(cap, est) - obs) ** 2)))
+    # full is exact up to float32 (rmse ~1e-6 of a peak of 85); the distant model cannot
+    # reproduce a near lamp's highlight at all (measured rmse 0.77).
+    assert rmse["full"] < 1e-4 * obs.max()
+    assert rmse["distant"] > 100 * rmse["full"]
