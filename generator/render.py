@@ -372,7 +372,7 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
         passes = [(p, c) for c in range(3) for p in (("specular", "diffuse", "full") if analytic else ("full",))]
     spp = scene.capture.spp
     with tempfile.TemporaryDirectory(prefix="nearlight-") as scratch, tqdm(
-        total=len(passes) * spp, desc="render", unit="sample", disable=not progress, leave=False
+        total=len(passes) * spp, desc=f"render ({len(passes)} passes)", unit="spp", disable=not progress, leave=False
     ) as bar:
         stokes: dict[str, np.ndarray] = {}
         for i, (part, channel) in enumerate(passes):
