@@ -44,7 +44,7 @@ def board_section(doc: dict[str, Any]) -> str:
     for m, r in ex["methods"].items():
         rows.append([f"nearlight `{m}`", _vec(np.asarray(r["lamp_position"]) / unit),
                      f"{r['lamp_position_error_m'] / unit:.2f}", f"{r['lamp_position_error_pct']:.2f} %",
-                     f"{r['sigma']:.4f}", _vec(r["ks"], 3)])  # fmt: skip
+                     f"{r['sigma']:.4f}", _vec(r["ks_in_truth_units"], 3)])  # fmt: skip
     bsdf = ex["truth"]["bsdf"]
     return f"""## 1. Synthetic board, Ward BRDF (paper §4.1, Fig. 3)
 
@@ -56,7 +56,8 @@ also given as a percentage of the lamp's distance (the paper's: from the origin,
 |L_true| = {np.linalg.norm(true_u):.2f}; ours: from the highlight point). σ and Ks
 are the Torrance–Sparrow fit to a Ward surface, so, as the paper says, they are
 not comparable to the truth; they are printed to set them beside the paper's
-σ** and Ks**.
+σ** and Ks**. Ks is divided by the lamp intensity reaching the board, which the
+estimator cannot know (it folds it into Ks).
 
 {_table(["", "lamp (units)", "error (units)", "error (% of distance)", "σ", "Ks"], rows)}
 
@@ -71,14 +72,15 @@ def object_section(doc: dict[str, Any], key: str, heading: str) -> str:
     rows = [["truth", _vec(ex["truth"]["lamp_position"]), "", "", f"{bsdf['sigma']}", _vec(bsdf["ks"], 2), "", ""]]
     for m, r in ex["methods"].items():
         rows.append([f"`{m}`", _vec(r["lamp_position"]), f"{1000 * r['lamp_position_error_m']:.1f}",
-                     f"{r['lamp_position_error_pct']:.2f} %", f"{r['sigma']:.4f}", _vec(r["ks"], 3),
+                     f"{r['lamp_position_error_pct']:.2f} %", f"{r['sigma']:.4f}", _vec(r["ks_in_truth_units"], 3),
                      f"{100 * r['sigma_rel_error']:.1f} %", f"{100 * r['ks_rel_error']:.1f} %"])  # fmt: skip
     note = ""
     if key == "bookend":
         note = (
             f"The truth uses the paper's fitted values for the real bookend ({paper['section']}: "
             f"σ** = {paper['sigma']}, Ks** = {_vec(paper['ks'], 2)}). Ks is known only up to the lamp "
-            "intensity: its error is taken after the one global scale that leaves free.\n"
+            "intensity: the table divides it by the true intensity reaching the surface, and its error "
+            "is taken after the one global scale that leaves free.\n"
         )
     return f"""## {heading}
 
@@ -118,7 +120,7 @@ def markdown(doc: dict[str, Any]) -> str:
 Hara, Nishino, Nakazawa, Ikeuchi, "Estimating Light Position and Surface Reflectance
 from Specular Reflection under Perspective Projection", reproduced on Mitsuba 3
 renders by nearlight {doc['nearlight_version']}. Profile `{p['name']}`: {p['resolution'][0]}×{p['resolution'][1]}
-pixels, {len(p['analyzer_angles_deg'])} analyzer angles, {p['spp']} spp; the run took
+pixels, {len(p['analyzer_angles_deg'])} analyzer angles; the run took
 {doc['elapsed_s']:.0f} s. Every number below was produced by this run (see
 `paper_reproduction.json`); the paper's numbers are quoted with their section.
 """
