@@ -272,7 +272,11 @@ def surface(mi: ModuleType, mscene: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 def lamp_inside(mi: ModuleType, mscene: Any, position: Any) -> bool:
-    """Whether ``position`` is inside a closed object (odd crossings on most of 3 rays)."""
+    """Whether ``position`` is inside a closed object: an odd number of surface crossings along each of 3 rays.
+
+    Requiring all three (not a majority) keeps a lamp outside an open PLY mesh (a plane crossed by some rays
+    only) from being reported as inside.
+    """
     votes = 0
     for d in ((0.5773, 0.5774, 0.5774), (-0.267, 0.535, -0.802), (0.0, -0.6, 0.8)):
         o, crossings = mi.Point3f(*position), 0
@@ -283,7 +287,7 @@ def lamp_inside(mi: ModuleType, mscene: Any, position: Any) -> bool:
             crossings += 1
             o = si.spawn_ray(mi.Vector3f(*d)).o
         votes += crossings % 2
-    return votes >= 2
+    return votes == 3
 
 
 # --------------------------------------------------------------------------- render_clean
