@@ -14,9 +14,12 @@ Eq. 8 as printed, ``N + (N, V) N − V``, is the mirror direction only when
 (:func:`nearlight.reflectance.mirror_direction`).
 
 Stage 2 (§3.4, ``paper``): alternating minimisation (AM) of eq. 18,
-``E_energy(Ks, σ, t) = Σ_m Σ_k (E_k,m(t) − Ks,m / cos θr,k · exp(−α_k(t)² / 2σ²))²``
-over the surface pixels, steps 1–6 with thresholds ε1–ε4. Two steps are
-implemented as what they are meant to do rather than as printed:
+``E_energy(Ks, σ, t) = Σ_m Σ_k (E_k,m − Ks,m / cos θr,k · exp(−α_k(t)² / 2σ²))²``
+over the surface pixels, steps 1–6 with thresholds ε1–ε4. As printed only α
+depends on t: E is "measured" once, with r at the first stage's t*
+(``energy="ratio"``, default); ``energy="ratio-t"`` re-measures E with r(t)
+and ``energy="radiance"`` fits the image itself (see :class:`Energy`). Two
+steps are implemented as what they are meant to do rather than as printed:
 
 * step 2: the printed Ks update ``Σ E / Σ g`` (g the lobe) minimises
   E_energy only when g is constant; we use the exact minimiser over Ks,
@@ -259,34 +262,47 @@ class Energy:
         The ray ``P + t·Lp``.
     pixels : {"surface", "specular"}
         The paper's "N_k surface points": every surface pixel, or the specular mask.
-    space : {"ratio", "radiance"}
-        ``"ratio"`` (eq. 18 as printed): residuals of ``E = I_s r(t)²`` against
-        ``Ks/cos θr · exp(…)``. Because E itself depends on t, this energy
-        shrinks as the lamp approaches the surface, and when the peak ray
-        misses the lamp the AM drifts towards t → 0. ``"radiance"``: residuals
-        of ``I_s`` against ``Ks/(cos θr r²) · exp(…)``, the same model in image
-        space (each residual divided by r²), which has no such drift.
+    space : {"ratio", "ratio-t", "radiance"}
+        ``"ratio"`` (default; eq. 18 as printed, where only α carries a
+        ``(t)``): residuals of the measured ratio ``E = I_s r²``, computed once
+        with the lamp at ``t_ref`` (the first stage's t*), against
+        ``Ks/cos θr · exp(−α(t)²/2σ²)``. ``"ratio-t"``: E recomputed with
+        ``r(t)`` at every t; since E then shrinks as the lamp approaches the
+        surface, the AM drifts towards t → 0 whenever the peak ray misses the
+        lamp. ``"radiance"``: residuals of ``I_s`` against
+        ``Ks/(cos θr r(t)²) · exp(…)``, the same model in image space.
+    t_ref : float
+        Lamp distance at which ``"ratio"`` measures E, metres.
     """
+
+    SPACES = ("ratio", "ratio-t", "radiance")
 
     def __init__(
         self, obs: Observation, origin: np.ndarray, direction: np.ndarray, *, pixels: str = "surface",
-        space: str = "ratio",
+        space: str = "ratio", t_ref: float | None = None,
     ):
         if pixels not in ("surface", "specular"):
             raise UserError(f"option pixels: expected 'surface' or 'specular', got {pixels!r}")
-        if space not in ("ratio", "radiance"):
-            raise UserError(f"option energy: expected 'ratio' or 'radiance', got {space!r}")
+        if space not in self.SPACES:
+            raise UserError(f"option energy: expected one of {', '.join(self.SPACES)}, got {space!r}")
         s = obs.mask if pixels == "specular" else obs.surface
         self.P, self.N, self.I = obs.P[s], obs.N[s], obs.specular[s]
         self.cos_r = obs.cos_r[s]
         self.camera, self.origin, self.direction = obs.camera_position, origin, direction
         self.space = space
+        if space == "ratio":
+            if t_ref is None:
+                raise ValueError("space='ratio' needs t_ref")
+            r = np.linalg.norm(self.origin + t_ref * self.direction - self.P, axis=-1)
+            self.E_ref = self.I * (r**2)[:, None]
 
     def at(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``target [n, 3]``, ``α² [n]`` and ``base [n]`` for the lamp at distance t (m)."""
         g = shading_geometry(self.P, self.N, self.camera, self.origin + t * self.direction)
         r2 = g.r**2
         if self.space == "ratio":
+            return self.E_ref, g.alpha**2, 1.0 / self.cos_r
+        if self.space == "ratio-t":
             return self.I * r2[:, None], g.alpha**2, 1.0 / self.cos_r
         return self.I, g.alpha**2, 1.0 / (self.cos_r * r2)
 
@@ -415,9 +431,10 @@ def paper_estimate(
         AM options; see :func:`alternating_minimisation` for defaults.
     pixels : {"surface", "specular"}
         Pixels of E_energy (default every surface pixel, as the paper's N_k).
-    energy : {"ratio", "radiance"}
-        ``"ratio"`` (default): eq. 18 as printed; ``"radiance"``: its image-space
-        form; see :class:`Energy`.
+    energy : {"ratio", "ratio-t", "radiance"}
+        ``"ratio"`` (default): eq. 18 as printed, E measured once at t*;
+        ``"ratio-t"``: E re-measured at every t; ``"radiance"``: image-space
+        residuals; see :class:`Energy`.
     **init_options
         Options of :func:`stage_one` (``separation``, ``threshold``,
         ``t_max``, ``dt``, ``search``, ``n_coarse``).
@@ -425,7 +442,8 @@ def paper_estimate(
     init, obs = stage_one(capture, **init_options)
     clock = time.perf_counter()
     d = init.diagnostics
-    objective = Energy(obs, np.asarray(d["ray_origin"]), np.asarray(d["ray_direction"]), pixels=pixels, space=energy)
+    objective = Energy(obs, np.asarray(d["ray_origin"]), np.asarray(d["ray_direction"]), pixels=pixels, space=energy,
+                       t_ref=init.stages["init"]["t"])
     am = alternating_minimisation(
         objective, ks=init.ks, sigma=init.sigma, t=init.stages["init"]["t"], dt=d["dt"], gamma=gamma,
         eps1=eps1, eps2=eps2, eps3=eps3, eps4=eps4, max_outer=max_outer,
