@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     pos = ", ".join(f"{v:.4f}" for v in est.lamp_position)
     ks = ", ".join(f"{v:.4g}" for v in est.ks)
     print(f"{est.method}: lamp ({pos}) m  ks ({ks})  sigma {est.sigma:.4f} rad  "
-          f"[{est.timings.get('total', float('nan')):.2f} s]")
+          f"[{sum(est.timings.values()):.2f} s]")
     if args.json:
         _write_json(est.to_dict(), Path(args.json))
     if args.plot:

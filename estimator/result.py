@@ -35,7 +35,7 @@ class Estimate:
         Curves and counts, e.g. ``t_grid`` and ``ep`` (the E_p(t) curve),
         ``energy`` (E_energy per AM iteration), ``n_pixels``.
     timings : dict of str to float
-        Seconds per stage.
+        Seconds per stage (they sum to the run time; no separate total).
     light_model : dict
         How to re-synthesise: ``{"type": "point"}``, or for the distant
         baseline ``{"type": "distant", "light_direction": [...],
