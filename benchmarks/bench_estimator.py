@@ -24,7 +24,7 @@ import numpy as np
 
 from nearlight.estimator import METHODS, estimate
 from nearlight.estimator.observation import observe
-from nearlight.estimator.paper import RaySearch, _defaults, fast_search, scan_search
+from nearlight.estimator.paper import RaySearch, fast_search, scan_search, t_search_defaults
 from nearlight.synthetic import analytic_capture
 
 SCENES = {
@@ -61,7 +61,7 @@ def main() -> None:
             err = np.linalg.norm(est.lamp_position - lamp) / np.linalg.norm(lamp - origin)
             print(f"{name:8} {method:11} {secs:8.3f} {err:9.2e} {est.sigma:7.4f}")
         obs = observe(cap)
-        t_max, dt = _defaults(obs, None, None)
+        t_max, dt = t_search_defaults(obs, None, None)
         ray = RaySearch(obs)
         t_scan, scan = best_of(lambda: scan_search(ray.ep, t_max=t_max, dt=dt), 1)
         n0 = ray.evaluations

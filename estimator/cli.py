@@ -22,7 +22,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(format v1). Methods: paper, paper-init, full, distant, or a plug-in module:function.",
     )
     p.add_argument("capture", metavar="DIR", help="capture directory (capture.json + capture.exr)")
-    p.add_argument("--method", default="paper", help="paper | paper-init | full | distant | module:function (default paper)")
+    p.add_argument(
+        "--method", default="paper", help="paper | paper-init | full | distant | module:function (default paper)"
+    )
     p.add_argument("--json", metavar="OUT", help="write the estimate as JSON here")
     p.add_argument("--plot", metavar="OUT.png", help="write E_p(t) and observed vs re-synthesised specular here")
     p.add_argument(

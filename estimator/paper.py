@@ -152,7 +152,7 @@ def fast_search(ep: Callable[[np.ndarray], np.ndarray], *, t_max: float, dt: flo
 SEARCHES = {"fast": fast_search, "scan": scan_search}
 
 
-def _defaults(obs: Observation, t_max: float | None, dt: float | None) -> tuple[float, float]:
+def t_search_defaults(obs: Observation, t_max: float | None, dt: float | None) -> tuple[float, float]:
     """``t_max`` = 10 × the camera–highlight distance; ``Δt`` = 1 mm (the paper's), or scale/1000 if larger."""
     dt = max(1e-3, obs.scale / 1000.0) if dt is None else float(dt)
     t_max = 10.0 * obs.scale if t_max is None else float(t_max)
@@ -209,7 +209,7 @@ def stage_one(
     """
     clock = time.perf_counter()
     obs = observe(capture, separation=separation, threshold=threshold)
-    t_max, dt = _defaults(obs, t_max, dt)
+    t_max, dt = t_search_defaults(obs, t_max, dt)
     timings = {"observe": time.perf_counter() - clock}
     clock = time.perf_counter()
     ray = RaySearch(obs)

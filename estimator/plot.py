@@ -49,7 +49,8 @@ def plot_estimate(capture: Capture, estimate: Estimate, path: str | os.PathLike)
         ax.set_xlabel("illuminant distance t (m)")
         ax.set_ylabel("E_p(t) = Σ r_XY")
         ax.set_title("E_p(t) along the peak ray")
-    for ax, img, title in zip(axes[has_curve:], (observed, synth), ("observed specular", f"re-synthesised ({estimate.method})")):
+    titles = ("observed specular", f"re-synthesised ({estimate.method})")
+    for ax, img, title in zip(axes[has_curve:], (observed, synth), titles):
         ax.imshow(_display(img, white))
         ax.set_title(title)
         ax.set_axis_off()

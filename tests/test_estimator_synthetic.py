@@ -18,7 +18,8 @@ def test_camera_follows_mitsuba_look_at_and_image_orientation():
     np.testing.assert_allclose(to_world[:3, 0], [-1, 0, 0])  # left = up x forward
     rays = camera_rays(to_world, 4, 2, 90.0)
     # the four central rays straddle the optical axis symmetrically
-    np.testing.assert_allclose(rays[:, 1:3].mean(axis=(0, 1)) / np.linalg.norm(rays[:, 1:3].mean(axis=(0, 1))), [0, 1, 0], atol=1e-12)
+    centre = rays[:, 1:3].mean(axis=(0, 1))
+    np.testing.assert_allclose(centre / np.linalg.norm(centre), [0, 1, 0], atol=1e-12)
     assert rays[0, 0, 0] < 0 < rays[0, -1, 0]  # column 0 looks towards -x (left), the last towards +x
     assert rays[0, 0, 2] > 0 > rays[-1, 0, 2]  # row 0 looks up
     # 90° horizontal field of view, 4 columns: column 0's centre is at 3/4 of tan(45°) to the
