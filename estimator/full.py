@@ -119,6 +119,7 @@ def full_estimate(
     max_pixels: int = 20000,
     saturation: float | None = None,
     n_starts: int = 6,
+    separation: str = "projected",
     **init_options,
 ) -> Estimate:
     """Method ``full``: ``paper-init``, then a robust fit of lamp position, Ks and σ.
@@ -126,6 +127,11 @@ def full_estimate(
     Parameters
     ----------
     capture : Capture
+    separation : {"projected", "fit", "maxmin"}
+        Separation of an analyzer stack; default ``"projected"``, the one
+        that is unbiased under noise (see :func:`~nearlight.estimator.separate`):
+        with ``"fit"`` the faint-specular pixels come out biased upwards and
+        the covariance no longer covers the error.
     loss : {"soft_l1", "linear", "huber", "cauchy", "arctan"}
         Robust loss of :func:`scipy.optimize.least_squares`.
     f_scale : float, optional
@@ -150,7 +156,7 @@ def full_estimate(
     """
     if loss not in LOSSES:
         raise UserError(f"option loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
-    init, obs = stage_one(capture, strict_t_max=False, **init_options)
+    init, obs = stage_one(capture, strict_t_max=False, separation=separation, **init_options)
     clock = time.perf_counter()
     use = fit_pixels(obs, max_pixels=int(max_pixels), saturation=saturation)
     model = PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use])

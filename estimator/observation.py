@@ -145,7 +145,7 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = 0.0
     Parameters
     ----------
     capture : Capture
-    separation : {"fit", "maxmin"}, optional
+    separation : {"fit", "projected", "maxmin"}, optional
         How to separate an analyzer stack (ignored when the capture has a
         ``specular`` image).
     threshold : float, optional

@@ -182,7 +182,7 @@ def stage_one(
     Parameters
     ----------
     capture : Capture
-    separation : {"fit", "maxmin"}
+    separation : {"fit", "projected", "maxmin"}
         Separation of an analyzer stack (see :func:`~nearlight.estimator.separate`).
     threshold : float
         Specular mask threshold, fraction of the peak pixel's mean specular.
