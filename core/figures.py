@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from nearlight.errors import UserError
+
 
 def tonemap(img: np.ndarray, *, white: float | None = None, gamma: float = 2.2) -> np.ndarray:
     """Linear radiance to display values in [0, 1].
@@ -47,6 +49,7 @@ def panel_grid(
     ncols: int | None = None,
     title: str | None = None,
     panel_size: float = 3.2,
+    title_size: int = 10,
 ) -> Path:
     """Write labelled images side by side as one PNG.
 
@@ -63,10 +66,17 @@ def panel_grid(
     title : str, optional
     panel_size : float, optional
         Width of one panel, inches.
+    title_size : int, optional
+        Font size of the figure title (panel labels are one point smaller).
 
     Returns
     -------
     Path
+
+    Raises
+    ------
+    UserError
+        ``path`` cannot be written.
     """
     import matplotlib
 
@@ -86,12 +96,16 @@ def panel_grid(
         shown = ax.imshow(img, interpolation="nearest", **(opts[0] if opts else {}))
         if np.asarray(img).ndim == 2:
             fig.colorbar(shown, ax=ax, fraction=0.046, pad=0.02)
-        ax.set_title(label, fontsize=9)
+        ax.set_title(label, fontsize=title_size - 1)
     if title:
-        fig.suptitle(title, fontsize=10)
+        fig.suptitle(title, fontsize=title_size)
     fig.tight_layout()
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=100)
+    except OSError as exc:
+        raise UserError(f"{path}: cannot write the figure ({exc.strerror or exc})") from None
+    finally:
+        plt.close(fig)
     return path

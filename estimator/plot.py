@@ -12,11 +12,7 @@ from nearlight.errors import UserError
 from nearlight.estimator.observation import specular_image
 from nearlight.estimator.resynth import render_specular
 from nearlight.estimator.result import Estimate
-
-
-def _display(img: np.ndarray, white: float) -> np.ndarray:
-    """Linear radiance to an sRGB-ish display image in [0, 1]."""
-    return np.clip(img / white, 0.0, 1.0) ** (1 / 2.2)
+from nearlight.figures import tonemap
 
 
 def plot_estimate(capture: Capture, estimate: Estimate, path: str | os.PathLike) -> Path:
@@ -51,7 +47,7 @@ def plot_estimate(capture: Capture, estimate: Estimate, path: str | os.PathLike)
         ax.set_title("E_p(t) along the peak ray")
     titles = ("observed specular", f"re-synthesised ({estimate.method})")
     for ax, img, title in zip(axes[has_curve:], (observed, synth), titles):
-        ax.imshow(_display(img, white))
+        ax.imshow(tonemap(img, white=white))
         ax.set_title(title)
         ax.set_axis_off()
     try:
