@@ -21,13 +21,13 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from nearlight.errors import UserError
+from nearlight.jsonable import jsonable
 
 FORMAT = "nearlight-capture/1"
 JSON_NAME = "capture.json"
@@ -388,9 +388,9 @@ def capture_json(capture: Capture) -> dict[str, Any]:
     if capture.lamp_polarizer_axis is not None:
         doc["lamp_polarizer_axis"] = _list(capture.lamp_polarizer_axis)
     if capture.truth is not None:
-        doc["truth"] = _jsonable(capture.truth)
+        doc["truth"] = jsonable(capture.truth)
     for key, value in capture.meta.items():
-        doc.setdefault(key, _jsonable(value))
+        doc.setdefault(key, jsonable(value))
     return doc
 
 
@@ -420,17 +420,3 @@ def _channels(capture: Capture) -> dict[str, np.ndarray]:
 
 def _list(a: Any) -> Any:
     return np.asarray(a, dtype=float).tolist()
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, Mapping):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, Path):
-        return str(x)
-    return x

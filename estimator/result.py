@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+
+from nearlight.jsonable import jsonable
 
 
 @dataclasses.dataclass
@@ -63,27 +64,13 @@ class Estimate:
         """JSON-ready dict: lists for arrays, floats for scalars (NaN kept as None)."""
         return {
             "method": self.method,
-            "lamp_position": _jsonable(self.lamp_position),
-            "ks": _jsonable(self.ks),
-            "sigma": _jsonable(self.sigma),
-            "covariance": _jsonable(self.covariance),
+            "lamp_position": jsonable(self.lamp_position),
+            "ks": jsonable(self.ks),
+            "sigma": jsonable(self.sigma),
+            "covariance": jsonable(self.covariance),
             "covariance_params": ["x", "y", "z", "sigma"],
-            "light_model": _jsonable(self.light_model),
-            "stages": _jsonable(self.stages),
-            "diagnostics": _jsonable(self.diagnostics),
-            "timings": _jsonable(self.timings),
+            "light_model": jsonable(self.light_model),
+            "stages": jsonable(self.stages),
+            "diagnostics": jsonable(self.diagnostics),
+            "timings": jsonable(self.timings),
         }
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, Mapping):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, np.generic):
-        x = x.item()
-    if isinstance(x, float) and not np.isfinite(x):
-        return None
-    return x
