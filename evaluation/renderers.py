@@ -16,36 +16,14 @@ import hashlib
 import inspect
 import json
 import math
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
+from nearlight.dotted import get_dotted, set_dotted
 from nearlight.errors import UserError
-
-
-def set_dotted(doc: dict, key: str, value: Any, *, where: str) -> None:
-    """Set ``doc["a"]["b"] = value`` for ``key = "a.b"``, creating mappings on the way."""
-    parts = key.split(".")
-    node = doc
-    for part in parts[:-1]:
-        child = node.setdefault(part, {})
-        if not isinstance(child, dict):
-            raise UserError(f"{where}: {part!r} is not a mapping, cannot set {key!r}")
-        node = child
-    node[parts[-1]] = value
-
-
-def get_dotted(doc: Mapping, key: str, default: Any = None) -> Any:
-    """``doc["a"]["b"]`` for ``key = "a.b"``, or ``default``."""
-    node: Any = doc
-    for part in key.split("."):
-        if not isinstance(node, Mapping) or part not in node:
-            return default
-        node = node[part]
-    return node
 
 
 def convert_material(material: dict, model: str) -> dict:

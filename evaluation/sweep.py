@@ -27,7 +27,8 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from nearlight.errors import UserError
-from nearlight.evaluation.renderers import RENDERERS, Renderer, set_dotted
+from nearlight.dotted import set_dotted
+from nearlight.evaluation.renderers import RENDERERS, Renderer
 
 #: Built-in axes: name -> (applied after rendering?, meaning).
 AXES: dict[str, tuple[bool, str]] = {

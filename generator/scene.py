@@ -28,6 +28,7 @@ from pydantic import (
     model_validator,
 )
 
+from nearlight.dotted import set_dotted
 from nearlight.errors import UserError
 
 PositiveFloat = Annotated[float, Field(gt=0)]
@@ -348,7 +349,7 @@ def load_scene(
         if not isinstance(data, dict):
             raise UserError(f"{path}: expected a mapping with camera, object, material, lamp, capture")
     for key, value in _parse_overrides(overrides, name):
-        _set_dotted(data, key, value, name)
+        set_dotted(data, key, value, where=name)
     try:
         scene = Scene.model_validate(data, context={"base": base})
     except ValidationError as exc:
@@ -370,17 +371,6 @@ def _parse_overrides(overrides: Iterable[str] | Mapping[str, Any], name: str) ->
         except yaml.YAMLError:
             raise UserError(f"--set {item!r}: value is not valid YAML") from None
     return out
-
-
-def _set_dotted(data: dict[str, Any], key: str, value: Any, name: str) -> None:
-    node = data
-    parts = key.split(".")
-    for i, part in enumerate(parts[:-1]):
-        child = node.setdefault(part, {})
-        if not isinstance(child, dict):
-            raise UserError(f"{name}: {'.'.join(parts[: i + 1])}: is not a section, cannot set {key}")
-        node = child
-    node[parts[-1]] = value
 
 
 def _describe(exc: ValidationError) -> str:

@@ -43,7 +43,7 @@ def _write(tmp_path, doc, name="s.yaml"):
         ({"scene": "missing.yaml"}, "scene: no such scene file"),
         ({"scene": {"widht": 3}}, "scene: widht: not an analytic_capture argument"),
         ({"axes": {"polarization": ["fresnel"]}}, "supports only 'ideal' polarization"),
-        ({"set": {"width.x": 3}}, "set.width.x: 'width' is not a mapping"),
+        ({"set": {"width.x": 3}}, "set.width.x: width: is not a section"),
     ],
 )
 def test_bad_sweep_files_give_one_line_errors(tmp_path, change, expect):
