@@ -67,7 +67,7 @@ estimator cannot know (it folds it into Ks).
 
 def object_section(doc: dict[str, Any], key: str, heading: str) -> str:
     ex = doc["experiments"][key]
-    bsdf = ex["truth"]["bsdf"]
+    bsdf, noise = ex["truth"]["bsdf"], ex["camera_noise"]
     paper = doc["paper"]["bookend"]
     rows = [["truth", _vec(ex["truth"]["lamp_position"]), "", "", f"{bsdf['sigma']}", _vec(bsdf["ks"], 2), "", ""]]
     for m, r in ex["methods"].items():
@@ -84,8 +84,11 @@ def object_section(doc: dict[str, Any], key: str, heading: str) -> str:
         )
     return f"""## {heading}
 
-Scene `{ex['scene']}`, Torrance–Sparrow, separated from the analyzer stack by the
-per-pixel cos 2θ fit. Lamp positions in metres, world frame.
+Scene `{ex['scene']}`, Torrance–Sparrow, seen by a camera with noise like the
+paper's real captures ({noise['bits']}-bit, full well {noise['full_well']:.0f} e⁻, read noise
+{noise['read_noise']:g} e⁻, brightest pixel at 90 % of the full well), separated from the
+analyzer stack (figures: the per-pixel cos 2θ fit; each method: its default separation).
+Lamp positions in metres, world frame.
 {note}
 {_table(["", "lamp (m)", "error (mm)", "error (% of distance)", "σ", "Ks", "σ error", "Ks error"], rows)}
 
