@@ -111,7 +111,7 @@ def specular_image(capture: Capture, *, separation: str = "fit") -> np.ndarray:
         spec, channel = spec[0], "pol<k>"
     else:
         raise UserError(f"{capture.name}: no image: expected pol<k>.R/G/B channels or specular.R/G/B")
-    surface = np.all(np.isfinite(capture.P), axis=-1)
+    surface = capture.surface_mask
     bad = surface & ~np.all(np.isfinite(spec), axis=-1)
     if bad.any():
         i, j = np.argwhere(bad)[0]
