@@ -14,13 +14,11 @@ import time
 import traceback
 from collections.abc import Mapping
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
 from nearlight.evaluation import metrics
-from nearlight.reflectance import specular_radiance
 
 #: Metric columns (all "lower is better"), in table order, with their units.
 METRICS: dict[str, str] = {
@@ -36,10 +34,6 @@ METRICS: dict[str, str] = {
 }
 #: Other numeric columns of a row (not compared as regressions).
 INFO_COLUMNS = ("distance_signed_m", "lamp_distance_true_m", "sigma_truth", "crlb_lamp_m", "crlb_sigma_rel")
-
-
-def _field(est: Any, name: str) -> Any:
-    return est[name] if isinstance(est, Mapping) else getattr(est, name)
 
 
 def truth_sigma(bsdf: Mapping[str, Any]) -> float:
@@ -60,7 +54,7 @@ def truth_ks(bsdf: Mapping[str, Any]) -> np.ndarray | None:
     return None
 
 
-def truth_estimate(capture: Any) -> SimpleNamespace:
+def truth_estimate(capture: Any) -> Any:
     """The oracle estimate of a Torrance–Sparrow capture, in the estimators' convention.
 
     Estimators report Ks with the lamp intensity reaching the surface folded in
@@ -70,41 +64,27 @@ def truth_estimate(capture: Any) -> SimpleNamespace:
     truth = capture.truth
     bsdf = truth["bsdf"]
     intensity = np.broadcast_to(np.asarray(truth.get("lamp_intensity", 2.0), dtype=float), (3,))
-    return SimpleNamespace(
+    from nearlight.estimator import Estimate
+
+    return Estimate(
+        method="truth",
         lamp_position=np.asarray(truth["lamp_position"], dtype=float),
         ks=truth_ks(bsdf) * intensity / 2.0,
         sigma=truth_sigma(bsdf),
     )
 
 
-def rerender_specular(capture: Any, estimate: Any) -> np.ndarray:
-    """Specular image ``[H, W, 3]`` an estimate predicts on the capture's geometry (0 off the surface).
-
-    Torrance–Sparrow lobe with the estimate's lamp, Ks and σ at unit intensity
-    (Ks carries the intensity), on the capture's ``P`` and ``N``.
-    """
-    mask = capture.surface_mask
-    out = np.zeros((capture.height, capture.width, 3))
-    bsdf = {"model": "torrance_sparrow", "ks": np.asarray(_field(estimate, "ks"), float), "sigma": float(_field(estimate, "sigma"))}
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        out[mask] = specular_radiance(
-            capture.P[mask], capture.N[mask], capture.camera.position, np.asarray(_field(estimate, "lamp_position"), float), 1.0, bsdf
-        )
-    return out
-
-
-def score(capture: Any, estimate: Any, *, rendered: np.ndarray | None = None) -> dict[str, float]:
+def score(capture: Any, estimate: Any) -> dict[str, float]:
     """Metric columns of ``estimate`` against the truth of the noise-free ``capture``.
 
     Parameters
     ----------
     capture : Capture
         Noise-free capture with ``truth``, ``N`` and ``extra["truth_specular"]``.
-    estimate : Estimate or mapping
-        Has ``lamp_position`` (3,), ``ks`` (3,), ``sigma``.
-    rendered : ndarray, shape (H, W, 3), optional
-        The specular image the estimate predicts on the capture's geometry
-        (the estimator's own re-synthesis); default :func:`rerender_specular`.
+    estimate : Estimate
+        Its specular image is re-synthesised by the estimator's own forward
+        model (:func:`nearlight.estimator.render_specular`), which knows
+        distant-light estimates too.
 
     Returns
     -------
@@ -115,22 +95,23 @@ def score(capture: Any, estimate: Any, *, rendered: np.ndarray | None = None) ->
     truth = capture.truth
     bsdf = truth["bsdf"]
     lamp_true = np.asarray(truth["lamp_position"], dtype=float)
-    lamp_est = np.asarray(_field(estimate, "lamp_position"), dtype=float)
+    lamp_est = np.asarray(estimate.lamp_position, dtype=float)
     origin = metrics.highlight_point(capture.P, capture.N, capture.camera.position, lamp_true)
     sigma_true = truth_sigma(bsdf)
     ks_true = truth_ks(bsdf)
     observed = capture.extra["truth_specular"]
     mask = capture.surface_mask
-    if rendered is None:
-        rendered = rerender_specular(capture, estimate)
+    from nearlight.estimator import render_specular
+
+    rendered = np.asarray(render_specular(capture, estimate), dtype=float)
     rmse = metrics.specular_rmse(rendered, observed, mask)
     return {
         "lamp_position_error_m": metrics.lamp_position_error(lamp_est, lamp_true),
         "lamp_position_error_pct": metrics.lamp_position_error_pct(lamp_est, lamp_true, origin=origin),
         "direction_error_deg": metrics.direction_error_deg(lamp_est, lamp_true, origin=origin),
         "distance_error_m": metrics.distance_error(lamp_est, lamp_true, origin=origin),
-        "sigma_rel_error": metrics.sigma_relative_error(_field(estimate, "sigma"), sigma_true),
-        "ks_rel_error": math.nan if ks_true is None else metrics.ks_relative_error(_field(estimate, "ks"), ks_true),
+        "sigma_rel_error": metrics.sigma_relative_error(estimate.sigma, sigma_true),
+        "ks_rel_error": math.nan if ks_true is None else metrics.ks_relative_error(estimate.ks, ks_true),
         "specular_rmse": rmse,
         "specular_rmse_rel": rmse / float(np.max(observed[mask])),
         "distance_signed_m": metrics.distance_error_signed(lamp_est, lamp_true, origin=origin),
@@ -146,13 +127,6 @@ def run_method(capture: Any, method: str, options: Mapping[str, Any]) -> Any:
     if ":" in method:
         return load_method(method)(capture, **options)
     return estimate(capture, method=method, **options)
-
-
-def _resynthesise(clean: Any, est: Any) -> np.ndarray:
-    """The estimator's own re-synthesis of its estimate (knows distant-light estimates too)."""
-    from nearlight.estimator import render_specular
-
-    return np.asarray(render_specular(clean, est), dtype=float)
 
 
 def _noisy(clean: Any, task: Mapping[str, Any]) -> Any:
@@ -207,7 +181,7 @@ def run_task(task: Mapping[str, Any], *, renderer: Any, cache_dir: str | None) -
         est = run_method(capture, task["method_spec"], task["options"])
         row["runtime_s"] = time.perf_counter() - t0
         stage = "score"
-        row.update(score(clean, est, rendered=_resynthesise(clean, est)))
+        row.update(score(clean, est))
         stage = "crlb"
         row.update(_crlb(clean, task))
     except Exception as exc:  # a failing task is a row, not a crashed sweep
