@@ -51,12 +51,23 @@ def log_regression(X: np.ndarray, Y: np.ndarray, *, where: str = "specular") -> 
 
 
 def central_jacobian(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray, step: np.ndarray) -> np.ndarray:
-    """Central-difference Jacobian ``[n_residuals, n_params]`` with per-parameter steps."""
+    """Central-difference Jacobian ``[n_outputs, n_params]`` with per-parameter steps.
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(x) -> ndarray`` of any shape (flattened to n_outputs).
+    x : array_like, shape (n_params,)
+    step : array_like, shape (n_params,) or scalar
+        Difference step per parameter, in the parameter's units.
+    """
+    x = np.asarray(x, dtype=float)
+    step = np.broadcast_to(np.asarray(step, dtype=float), x.shape)
     cols = []
     for i, h in enumerate(step):
         dx = np.zeros_like(x)
         dx[i] = h
-        cols.append((fun(x + dx) - fun(x - dx)) / (2.0 * h))
+        cols.append((np.ravel(fun(x + dx)) - np.ravel(fun(x - dx))) / (2.0 * h))
     return np.stack(cols, axis=1)
 
 

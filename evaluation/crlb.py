@@ -28,32 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from nearlight.estimator.fitting import central_jacobian
 from nearlight.reflectance import specular_radiance
-
-
-def jacobian(model: Callable[[np.ndarray], np.ndarray], theta: Any, *, steps: Any) -> np.ndarray:
-    """Central-difference Jacobian of ``model`` at ``theta``.
-
-    Parameters
-    ----------
-    model : callable
-        ``model(theta) -> ndarray`` of any shape (flattened to M observations).
-    theta : array_like, shape (P,)
-    steps : array_like, shape (P,)
-        Difference step per parameter, in the parameter's units.
-
-    Returns
-    -------
-    ndarray, shape (M, P)
-    """
-    theta = np.asarray(theta, dtype=float)
-    steps = np.broadcast_to(np.asarray(steps, dtype=float), theta.shape)
-    cols = []
-    for i, h in enumerate(steps):
-        d = np.zeros_like(theta)
-        d[i] = h
-        cols.append((np.ravel(model(theta + d)) - np.ravel(model(theta - d))) / (2.0 * h))
-    return np.stack(cols, axis=1)
 
 
 def crlb(model: Callable[[np.ndarray], np.ndarray], theta: Any, *, noise_var: Any, steps: Any) -> np.ndarray:
@@ -62,7 +38,9 @@ def crlb(model: Callable[[np.ndarray], np.ndarray], theta: Any, *, noise_var: An
     Parameters
     ----------
     model, theta, steps
-        As :func:`jacobian`.
+        ``model(theta) -> ndarray`` (any shape, M observations), ``theta`` shape (P,) and
+        per-parameter difference steps, as
+        :func:`nearlight.estimator.fitting.central_jacobian`.
     noise_var : float or ndarray, shape (M,) or model's output shape
         Variance of each observation's noise, in the model's output units squared.
 
@@ -72,7 +50,7 @@ def crlb(model: Callable[[np.ndarray], np.ndarray], theta: Any, *, noise_var: An
         ``F⁻¹``; all-NaN when the Fisher matrix is singular (a parameter the
         data does not determine).
     """
-    J = jacobian(model, theta, steps=steps)
+    J = central_jacobian(model, theta, steps)
     v = np.broadcast_to(np.ravel(np.asarray(noise_var, dtype=float)), (J.shape[0],))
     if np.any(v <= 0):
         raise ValueError("noise_var: every observation needs a positive noise variance")
