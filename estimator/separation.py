@@ -13,6 +13,7 @@ from collections.abc import Callable
 import numpy as np
 
 from nearlight.errors import UserError
+from nearlight.stokes import linear_stokes
 
 
 def _maxmin(stack: np.ndarray, angles_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -29,15 +30,8 @@ def _maxmin(stack: np.ndarray, angles_deg: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def _coefficients(stack: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:
-    """``[3, H, W, 3]``: per-pixel least-squares ``a, b, c`` of ``a + b cos 2θ + c sin 2θ``."""
-    two_theta = 2.0 * np.radians(angles_deg)
-    A = np.stack([np.ones_like(two_theta), np.cos(two_theta), np.sin(two_theta)], axis=1)
-    if np.linalg.matrix_rank(A) < 3:
-        raise UserError(
-            "analyzer_angles_deg: fit separation needs at least 3 distinct angles (mod 180°), "
-            f"got {list(np.asarray(angles_deg).tolist())}"
-        )
-    return (np.linalg.pinv(A) @ stack.reshape(len(angles_deg), -1)).reshape(3, *stack.shape[1:])
+    """``[3, H, W, 3]``: per-pixel least-squares ``a, b, c`` of ``a + b cos 2θ + c sin 2θ`` (= ½ S0, S1, S2)."""
+    return 0.5 * linear_stokes(stack, angles_deg)
 
 
 def _fit(stack: np.ndarray, angles_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,8 +1,7 @@
-"""Linear-Stokes fit of an analyzer stack (for tests and contact sheets).
+"""Linear-Stokes fit of an analyzer stack with its residual (for tests and contact sheets).
 
-Through an ideal analyzer at θ, ``I(θ) = ½ (S0 + S1 cos 2θ + S2 sin 2θ)``; in
-``ideal`` mode this is ``Id/2 + Is cos²(θ − β)``, so ``Imax − Imin = Is`` and
-``2·Imin = Id`` (paper §2.3).
+The fit itself is :func:`nearlight.stokes.linear_stokes`; this adds the
+per-angle residual and the derived images (amplitude, Imin, DoLP, AoLP).
 """
 
 from __future__ import annotations
@@ -10,6 +9,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+
+from nearlight.stokes import analyzer_matrix, linear_stokes
 
 
 class StokesFit(NamedTuple):
@@ -53,10 +54,7 @@ def fit_stokes(stack: np.ndarray, angles_deg: np.ndarray) -> StokesFit:
     -------
     StokesFit
     """
-    t = np.radians(np.asarray(angles_deg, float))
-    A = 0.5 * np.stack([np.ones_like(t), np.cos(2 * t), np.sin(2 * t)], axis=1)  # [K, 3]
-    flat = np.asarray(stack, float).reshape(len(t), -1)
-    coef, *_ = np.linalg.lstsq(A, flat, rcond=None)
-    residual = (flat - A @ coef).reshape(stack.shape)
-    S0, S1, S2 = (c.reshape(stack.shape[1:]) for c in coef)
-    return StokesFit(S0, S1, S2, residual)
+    stack = np.asarray(stack, float)
+    S = linear_stokes(stack, angles_deg)
+    residual = stack - np.tensordot(analyzer_matrix(angles_deg), S, axes=1)
+    return StokesFit(S[0], S[1], S[2], residual)
