@@ -25,6 +25,13 @@ def normalize(v: np.ndarray, axis: int = -1) -> np.ndarray:
         return v / np.linalg.norm(v, axis=axis, keepdims=True)
 
 
+def tangent_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors ``a, b`` with ``(a, b, d)`` orthonormal, for a unit vector ``d`` of shape (3,)."""
+    d = np.asarray(d, dtype=float)
+    a = normalize(np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0]))
+    return a, np.cross(d, a)
+
+
 class Geometry(NamedTuple):
     """Per-point shading geometry, arrays of shape ``[...]`` (vectors ``[..., 3]``).
 

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from nearlight.capture import Camera, Capture
-from nearlight.reflectance import diffuse_radiance, normalize, specular_radiance
+from nearlight.reflectance import diffuse_radiance, normalize, specular_radiance, tangent_basis
 
 #: Default specular BSDF: the paper's simplified Torrance–Sparrow lobe.
 DEFAULT_BSDF = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1}
@@ -62,8 +62,7 @@ def _board(origin, rays, centre, normal, size):
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.dot(c - origin, n) / (rays @ n)
     P = origin + t[..., None] * rays
-    a = normalize(np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0]))
-    b = np.cross(n, a)
+    a, b = tangent_basis(n)
     d = P - c
     inside = (t > 0) & (np.abs(d @ a) <= size / 2) & (np.abs(d @ b) <= size / 2)
     P[~inside] = np.nan

@@ -25,7 +25,7 @@ from nearlight.estimator.fitting import log_regression, robust_fit
 from nearlight.estimator.observation import observe
 from nearlight.estimator.pixels import fit_pixels
 from nearlight.estimator.result import Estimate
-from nearlight.reflectance import mirror_direction, normalize, torrance_sparrow
+from nearlight.reflectance import mirror_direction, normalize, tangent_basis, torrance_sparrow
 
 
 def distant_specular(N: np.ndarray, light: np.ndarray, view: np.ndarray, ks: np.ndarray, sigma: float) -> np.ndarray:
@@ -49,11 +49,6 @@ def distant_specular(N: np.ndarray, light: np.ndarray, view: np.ndarray, ks: np.
         f = torrance_sparrow(cos_i, cos_r, alpha, ks=ks, sigma=sigma) * cos_i[..., None]
     lit = ((cos_i > 0) & (cos_r > 0))[..., None]
     return np.where(lit, np.nan_to_num(f), 0.0)
-
-
-def _tangent_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    a = normalize(np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0]))
-    return a, np.cross(d, a)
 
 
 def distant_estimate(
@@ -82,7 +77,7 @@ def distant_estimate(
     m = obs.mask
     view = normalize(obs.camera_position - obs.P[m].mean(axis=0))
     light0 = mirror_direction(obs.N[obs.peak], view)
-    e1, e2 = _tangent_basis(light0)
+    e1, e2 = tangent_basis(light0)
     Nm = obs.N[m]
     h0 = normalize(light0 + view)
     cos_r = Nm @ view
