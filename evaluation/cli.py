@@ -37,15 +37,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "compare",
         help="regression check of a sweep's results against a baseline",
-        description="Print the metrics that got worse than in BASELINE_DIR by more than the tolerance "
-        "(per method: mean over the tasks both ran); exit 1 if any did, 0 if none.",
+        description="Compare every method x metric x configuration of NEW_DIR with BASELINE_DIR: noise-free "
+        "configurations value against value, noisy ones pooled over their seeds (Mann-Whitney U, Sidak-corrected "
+        "to a family-wise ALPHA). Prints each check (baseline, new value, change with its interval, verdict) "
+        "and what differs between the two environments; exit 1 if anything got worse, 0 if not.",
     )
     p.add_argument("new", metavar="NEW_DIR")
     p.add_argument("baseline", metavar="BASELINE_DIR")
     p.add_argument("--tolerance", type=float, default=0.05, metavar="REL",
-                   help="allowed relative increase of a mean error (default 0.05 = 5%%)")
-    p.add_argument("--atol", type=float, default=1e-6, metavar="ABS",
-                   help="allowed absolute increase, in the metric's units (default 1e-6)")
+                   help="relative change that counts (default 0.05 = 5%%)")
+    p.add_argument("--alpha", type=float, default=0.05, metavar="P",
+                   help="family-wise false-alarm rate of the checks pooled over seeds (default 0.05)")
+    p.add_argument("--json", metavar="OUT.json", help="also write every check and the verdict as JSON")
     p.add_argument("--include-runtime", action="store_true", help="also compare runtime_s")
     p.set_defaults(run=_compare)
 
@@ -90,9 +93,10 @@ def _report(args: argparse.Namespace) -> int:
 def _compare(args: argparse.Namespace) -> int:
     from nearlight.evaluation.compare import compare_dirs
 
-    worse, lines = compare_dirs(
-        args.new, args.baseline, tolerance=args.tolerance, atol=args.atol, include_runtime=args.include_runtime
+    checks, lines = compare_dirs(
+        args.new, args.baseline, json_out=args.json, tolerance=args.tolerance, alpha=args.alpha,
+        include_runtime=args.include_runtime,
     )
     for line in lines:
         print(line)
-    return 1 if worse else 0
+    return 1 if any(c.regression for c in checks) else 0

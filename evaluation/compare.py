@@ -1,87 +1,360 @@
-"""Regression check: did any error get worse than in a baseline run of the same sweep?
+"""Regression verdicts: did a method get worse than in a baseline run of the same sweep?
 
-Rows are matched by task id (configuration, seed, method). For each method and
-each error metric the mean over the tasks that succeeded in both runs is
-compared: worse means ``new > base · (1 + tolerance) + atol``. A task that
-succeeded in the baseline and fails now, or is missing, is worse too.
+Rows are grouped by *check unit*: the configuration (the sweep's axis columns)
+and the method label. Seeds are not matched, so a re-run with other seeds, or
+on another machine, compares like with like. Each unit is one of two kinds:
+
+``exact`` (no camera or range noise: the numbers do not depend on the seed)
+    compared value against value. Worse when ``new > base + tolerance·|base|
+    + floor``, better when ``new < base − (tolerance·|base| + floor)``. The
+    per-metric floors (:data:`EXACT_FLOOR`) absorb what differs between two
+    machines for the same code: Dr.Jit renders differ in their last bits
+    between CPUs, and the estimators move by far less than the floors then
+    (measured on the smoke sweep, a 2-core Xeon against the baseline's
+    machine: at most 2.7e-6 m, 8.4e-4 % of the distance, 8e-6°, 5.7e-6 relative
+    in σ; the floors are 4–20 times that).
+
+``pooled`` (noisy: one row per seed)
+    the seeds' values of the baseline against the new run's, unpaired. Worse
+    only when the change is larger than the tolerance (``mean_new >
+    mean_base·(1 + tolerance)``, the asv rule) *and* unlikely under noise: a
+    one-sided Mann–Whitney U test at the Šidák-corrected level
+    ``1 − (1 − alpha)^(1/m)`` over the ``m`` pooled checks of the run, so the
+    chance that a re-run with other seeds is flagged anywhere is at most
+    ``alpha`` (default 5 %). Better is the mirror image. The change is printed
+    with a bootstrap confidence interval of the difference of means (at the
+    same corrected level). A unit with fewer than :data:`MIN_SEEDS` seeds on
+    either side cannot reach significance and is reported ``inconclusive``.
+
+A failure count that rises is checked the same way (exact units: any task that
+failed; pooled units: Fisher's exact test on the failure counts, in the same
+Šidák family). A unit of the baseline with no rows in the new results is a
+regression (``missing``).
+
+:func:`compare_frames` returns every check as a :class:`Check`;
+:func:`compare_dirs` adds the two folders' environments and the printed table.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
 import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from nearlight.evaluation.store import read_results
-from nearlight.evaluation.tasks import METRICS
+from nearlight.errors import UserError
+from nearlight.evaluation.store import MANIFEST, read_environments, read_results
+from nearlight.evaluation.tasks import INFO_COLUMNS, METRICS
+
+#: Metrics compared (``runtime_s`` only on request; ``specular_rmse`` is in radiance units whose scale
+#: differs per scene, ``specular_rmse_rel`` carries the same information scale-free).
+COMPARED = tuple(m for m in METRICS if m not in ("runtime_s", "specular_rmse"))
+#: Absolute allowance of an exact check, in the metric's units (see the module docstring for the
+#: cross-machine spread these cover).
+EXACT_FLOOR: dict[str, float] = {
+    "lamp_position_error_m": 2e-5,
+    "lamp_position_error_pct": 5e-3,
+    "direction_error_deg": 2e-3,
+    "distance_error_m": 2e-5,
+    "sigma_rel_error": 1e-4,
+    "ks_rel_error": 1e-4,
+    "specular_rmse_rel": 1e-5,
+    "runtime_s": 0.0,
+}
+#: Fewest seeds per side for a pooled check to reach a verdict: with 5 against 5 the smallest one-sided
+#: Mann–Whitney p is 1/252 = 0.004, below the Šidák level of a few dozen checks at alpha = 0.05.
+MIN_SEEDS = 5
+VERDICTS = ("worse", "missing", "better", "same", "inconclusive")
+
+
+@dataclasses.dataclass
+class Check:
+    """One verdict: a method's metric in one configuration, new against baseline.
+
+    Attributes
+    ----------
+    method : str
+    config : dict
+        Axis column -> value.
+    metric : str
+        A :data:`~nearlight.evaluation.tasks.METRICS` column, or ``"failures"``.
+    kind : str
+        ``"exact"`` or ``"pooled"``.
+    n_base, n_new : int
+        Rows (seeds) on each side.
+    base, new : float
+        Baseline and new value (mean over seeds for pooled checks; failure count for ``failures``).
+    low, high : float
+        Confidence interval of ``new − base`` (pooled; NaN otherwise).
+    p_value : float
+        One-sided p of the test in the direction of the change (pooled checks whose change exceeds
+        the tolerance; NaN otherwise).
+    verdict : str
+        One of :data:`VERDICTS`.
+    """
+
+    method: str
+    config: dict[str, Any]
+    metric: str
+    kind: str
+    n_base: int
+    n_new: int
+    base: float
+    new: float
+    low: float = math.nan
+    high: float = math.nan
+    p_value: float = math.nan
+    verdict: str = "same"
+
+    @property
+    def regression(self) -> bool:
+        """Whether this check fails the comparison."""
+        return self.verdict in ("worse", "missing")
+
+    def line(self) -> str:
+        """One printable line."""
+        where = ", ".join(f"{k}={v}" for k, v in self.config.items())
+        unit = METRICS.get(self.metric, "tasks")
+        if self.verdict == "missing":
+            return f"{self.verdict:>12}  {self.method} [{where}]: no rows in the new results"
+        change = self.new - self.base
+        rel = f" ({100 * change / self.base:+.1f}%)" if self.base and math.isfinite(change) else ""
+        ci = f" [{self.low:+.3g}, {self.high:+.3g}]" if math.isfinite(self.low) else ""
+        p = f" p={self.p_value:.2g}" if math.isfinite(self.p_value) else ""
+        return (
+            f"{self.verdict:>12}  {self.method} [{where}] {self.metric}: {self.base:.6g} -> {self.new:.6g} "
+            f"{unit}, change {change:+.3g}{rel}{ci}{p} ({self.kind}, n={self.n_base}/{self.n_new})"
+        )
+
+
+def _axes(df: pd.DataFrame, axes: Sequence[str] | None) -> list[str]:
+    """Config columns: the sweep's axes present in the rows, else every non-result column."""
+    if axes is not None:
+        return [a for a in axes if a in df.columns]
+    skip = {"task_id", "task_index", "sweep", "seed", "noisy", "method", "render_key", "renderer", "code_version",
+            "status", "error", *METRICS, *INFO_COLUMNS}
+    return [c for c in df.columns if c not in skip and not c.startswith("crlb_")]
+
+
+def _is_noisy(*sides: pd.DataFrame | None) -> bool:
+    """Whether a unit's numbers depend on the seed: the ``noisy`` column of either side, else
+    (results made before the column existed) whether its seeds disagree."""
+    sides = [s for s in sides if s is not None]
+    if any("noisy" in s for s in sides):
+        return any(bool(s["noisy"].any()) for s in sides if "noisy" in s)
+    for s in sides:
+        values = s[[m for m in COMPARED if m in s]].to_numpy(float)
+        if len(s) > 1 and not np.allclose(values, values[0], equal_nan=True, rtol=0, atol=0):
+            return True
+    return False
+
+
+def _finite(s: pd.Series) -> np.ndarray:
+    a = s.to_numpy(float)
+    return a[np.isfinite(a)]
+
+
+def _exact(metric: str, b: float, n: float, tolerance: float) -> str:
+    allow = tolerance * abs(b) + EXACT_FLOOR.get(metric, 0.0)
+    if math.isnan(n):
+        return "worse"
+    return "worse" if n > b + allow else "better" if n < b - allow else "same"
+
+
+def _bootstrap_ci(xb: np.ndarray, xn: np.ndarray, level: float, seed: int) -> tuple[float, float]:
+    """Percentile-bootstrap interval of mean(xn) − mean(xb) (scipy.stats.bootstrap, unpaired)."""
+    from scipy.stats import bootstrap
+
+    if np.ptp(np.concatenate([xb, xn])) == 0:
+        return 0.0, 0.0
+    res = bootstrap((xn, xb), lambda a, b, axis=-1: a.mean(axis=axis) - b.mean(axis=axis), paired=False,
+                    confidence_level=level, n_resamples=2000, method="percentile", random_state=seed)  # fmt: skip
+    return float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
 def compare_frames(
-    new: pd.DataFrame, base: pd.DataFrame, *, tolerance: float = 0.05, atol: float = 1e-6, include_runtime: bool = False
-) -> tuple[list[str], int]:
-    """The regressions of ``new`` against ``base`` as printable lines, and the number of checks.
+    new: pd.DataFrame,
+    base: pd.DataFrame,
+    *,
+    axes: Sequence[str] | None = None,
+    tolerance: float = 0.05,
+    alpha: float = 0.05,
+    include_runtime: bool = False,
+    intervals: bool = True,
+) -> list[Check]:
+    """Every check of ``new`` against ``base`` (see the module docstring for the rules).
 
     Parameters
     ----------
     new, base : DataFrame
-        Result rows (``task_id``, ``method``, ``status`` and metric columns).
+        Result rows: config columns, ``method``, ``status``, metric columns,
+        optionally ``noisy`` and ``seed``.
+    axes : sequence of str, optional
+        The config columns (the sweep's axes); default: guessed from the rows.
     tolerance : float
-        Allowed relative increase of a mean error.
-    atol : float
-        Allowed absolute increase, in the metric's units.
+        Relative change below which no change counts, ≥ 0.
+    alpha : float
+        Family-wise false-alarm rate of the pooled checks, in (0, 1).
     include_runtime : bool
         Also check ``runtime_s`` (off by default: machines differ).
+    intervals : bool
+        Bootstrap the confidence interval of each pooled change (the verdicts do not use it;
+        off saves ~10 ms a check in loops over many re-runs).
 
     Returns
     -------
-    worse : list of str
-    checks : int
+    list of Check
+        In baseline order: per unit, failures first, then each metric.
     """
-    worse: list[str] = []
-    merged = base.merge(new, on="task_id", how="left", suffixes=("_base", "_new"), indicator=True)
-    missing = merged[merged["_merge"] == "left_only"]
-    if len(missing):
-        worse.append(f"{len(missing)} task(s) of the baseline have no row in the new results")
-    both = merged[merged["_merge"] == "both"]
-    broke = both[(both["status_base"] == "ok") & (both["status_new"] != "ok")]
-    for _, r in broke.iterrows():
-        worse.append(f"task {r['task_id']} ({r['method_base']}): ok in baseline, now {r['status_new']}: {r['error_new']}")
-    ok = both[(both["status_base"] == "ok") & (both["status_new"] == "ok")]
-    checks = 0
-    metrics = [m for m in METRICS if include_runtime or m != "runtime_s"]
-    for method, grp in ok.groupby("method_base", sort=True):
-        for m in metrics:
-            if f"{m}_base" not in grp or f"{m}_new" not in grp:
+    from scipy.stats import fisher_exact, mannwhitneyu
+
+    if not (math.isfinite(tolerance) and tolerance >= 0):
+        raise UserError(f"--tolerance: expected a number >= 0, got {tolerance}")
+    if not (0 < alpha < 1):
+        raise UserError(f"--alpha: expected a number between 0 and 1, got {alpha}")
+    cols = _axes(base, axes)
+    keys = [*cols, "method"]
+    metrics = [*COMPARED, *(["runtime_s"] if include_runtime else [])]
+    new_groups = {k if isinstance(k, tuple) else (k,): g for k, g in new.groupby(keys, sort=False, dropna=False)}
+    units = []
+    for key, b in base.groupby(keys, sort=False, dropna=False):
+        key = key if isinstance(key, tuple) else (key,)
+        units.append((dict(zip(cols, key[:-1])), key[-1], b, new_groups.get(key)))
+
+    pooled = [u for u in units if u[3] is not None and _is_noisy(u[2], u[3])]
+    m = sum(1 + sum(_finite(b[x]).size > 0 for x in metrics if x in b) for _, _, b, _ in pooled)
+    level = 1.0 - (1.0 - alpha) ** (1.0 / max(m, 1))  # Šidák: per-check level for a family-wise alpha
+    checks: list[Check] = []
+    for i, (config, method, b, n) in enumerate(units):
+        if n is None:
+            checks.append(Check(method, config, "-", "-", len(b), 0, math.nan, math.nan, verdict="missing"))
+            continue
+        kind = "pooled" if _is_noisy(b, n) else "exact"
+        fb, fn = int((b["status"] != "ok").sum()), int((n["status"] != "ok").sum())
+        c = Check(method, config, "failures", kind, len(b), len(n), fb, fn)
+        if kind == "exact":
+            c.verdict = "worse" if fn > fb else "better" if fn < fb else "same"
+        elif fb != fn:
+            table = [[fn, len(n) - fn], [fb, len(b) - fb]]
+            c.p_value = float(fisher_exact(table, alternative="greater" if fn / len(n) > fb / len(b) else "less")[1])
+            up = fn / len(n) > fb / len(b)
+            c.verdict = ("worse" if up else "better") if c.p_value < level else "same"
+        checks.append(c)
+        bok, nok = b[b["status"] == "ok"], n[n["status"] == "ok"]
+        if nok.empty:  # every new task failed: the failures check says so, no metric to compare
+            continue
+        for metric in metrics:
+            if metric not in b or metric not in n:
                 continue
-            b = float(np.nanmean(grp[f"{m}_base"])) if grp[f"{m}_base"].notna().any() else math.nan
-            n = float(np.nanmean(grp[f"{m}_new"])) if grp[f"{m}_new"].notna().any() else math.nan
-            if math.isnan(b):
+            xb, xn = _finite(bok[metric]), _finite(nok[metric])
+            if xb.size == 0:
                 continue
-            checks += 1
-            if math.isnan(n) or n > b * (1.0 + tolerance) + atol:
-                change = f"{100 * (n - b) / b:+.1f}%" if b > 0 and not math.isnan(n) else "n/a"
-                worse.append(f"{method}: {m} mean {n:.6g} vs baseline {b:.6g} ({change}, unit {METRICS[m]})")
-    return worse, checks
+            c = Check(method, config, metric, kind, xb.size, xn.size, float(xb.mean()),
+                      float(xn.mean()) if xn.size else math.nan)  # fmt: skip
+            if kind == "exact":
+                c.verdict = _exact(metric, c.base, c.new, tolerance)
+            elif xn.size == 0:
+                c.verdict = "worse"
+            elif min(xb.size, xn.size) < MIN_SEEDS:
+                c.verdict = "inconclusive"
+            else:
+                if intervals:
+                    c.low, c.high = _bootstrap_ci(xb, xn, 1.0 - level, seed=i)
+                # tested only where the change exceeds the tolerance (the asv rule), so p is NaN otherwise
+                if c.new > c.base * (1.0 + tolerance):
+                    c.p_value = float(mannwhitneyu(xn, xb, alternative="greater").pvalue)
+                    c.verdict = "worse" if c.p_value < level else "same"
+                elif c.new < c.base * (1.0 - tolerance):
+                    c.p_value = float(mannwhitneyu(xn, xb, alternative="less").pvalue)
+                    c.verdict = "better" if c.p_value < level else "same"
+            checks.append(c)
+    return checks
+
+
+def _manifest(folder: Path) -> dict[str, Any]:
+    try:
+        return json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
 
 
 def compare_dirs(
-    new_dir: str | os.PathLike, base_dir: str | os.PathLike, **options: float | bool
-) -> tuple[list[str], list[str]]:
-    """Compare two sweep folders; returns (worse lines, every line to print).
+    new_dir: str | os.PathLike, base_dir: str | os.PathLike, *, json_out: str | os.PathLike | None = None,
+    **options: Any,
+) -> tuple[list[Check], list[str]]:  # fmt: skip
+    """Compare two sweep folders.
 
-    ``options`` as :func:`compare_frames`.
+    Parameters
+    ----------
+    new_dir, base_dir : path-like
+        Results folders of ``nearlight sweep``.
+    json_out : path-like, optional
+        Also write every check, the summary and the environment differences as JSON.
+    **options
+        As :func:`compare_frames` (``tolerance``, ``alpha``, ``include_runtime``).
+
+    Returns
+    -------
+    checks : list of Check
+    lines : list of str
+        What to print: notes, environment differences, every check, a summary.
     """
+    new_dir, base_dir = Path(new_dir), Path(base_dir)
     new, new_complete = read_results(new_dir)
     base, _ = read_results(base_dir)
-    worse, checks = compare_frames(new, base, **options)
+    mn, mb = _manifest(new_dir), _manifest(base_dir)
+    axes = mb.get("axes")
+    checks = compare_frames(new, base, axes=axes, **options)
+
     lines = []
     if not new_complete:
         lines.append(f"note: {new_dir} is an incomplete sweep ({len(new)} rows)")
-    if worse:
-        lines.append(f"WORSE than {base_dir} ({len(worse)}):")
-        lines += [f"  {w}" for w in worse]
-    else:
-        lines.append(f"ok: no metric worse than {base_dir} ({checks} method x metric means checked, {len(base)} tasks)")
-    return worse, lines
+    if mn.get("sweep_hash") != mb.get("sweep_hash"):
+        lines.append(
+            f"note: different task lists ({mn.get('name')!r} {mn.get('sweep_hash')} vs {mb.get('name')!r} "
+            f"{mb.get('sweep_hash')}): other seeds, methods or settings; units are matched by "
+            f"{', '.join(axes or ['config columns'])} and method"
+        )
+    env_new, env_base = read_environments(new_dir), read_environments(base_dir)
+    from nearlight.evaluation.environment import differences
+
+    diffs = differences(env_new[-1] if env_new else None, env_base[-1] if env_base else None)
+    lines.append("environment: " + ("same as the baseline's" if not diffs else f"{len(diffs)} difference(s)"))
+    lines += [f"  {d}" for d in diffs]
+    lines += [c.line() for c in checks]
+    counts = {v: sum(c.verdict == v for c in checks) for v in VERDICTS}
+    n_pooled = sum(c.kind == "pooled" for c in checks)
+    summary = (
+        f"{len(checks)} checks ({n_pooled} pooled over seeds at family-wise alpha "
+        f"{options.get('alpha', 0.05):g}, tolerance {options.get('tolerance', 0.05):g}): "
+        + ", ".join(f"{counts[v]} {v}" for v in VERDICTS)
+    )
+    regressions = [c for c in checks if c.regression]
+    lines.append(f"WORSE than {base_dir}: {summary}" if regressions else f"ok: nothing worse than {base_dir}: {summary}")
+    if json_out is not None:
+        doc = {
+            "new": str(new_dir), "baseline": str(base_dir), "regression": bool(regressions), "counts": counts,
+            "options": {"tolerance": 0.05, "alpha": 0.05, "include_runtime": False, **options},
+            "environment_differences": diffs,
+            "checks": [{**dataclasses.asdict(c), "regression": c.regression} for c in checks],
+        }  # fmt: skip
+        from nearlight.jsonable import jsonable
+
+        _write_json(Path(json_out), jsonable(doc))
+    return checks, lines
+
+
+def _write_json(path: Path, doc: Any) -> None:
+    from nearlight.evaluation.store import atomic_write
+
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(doc, indent=2) + "\n"))
+    except OSError as exc:
+        raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None

@@ -81,6 +81,7 @@ def task_row(task: Task, result: dict[str, Any], *, sweep: Sweep, version: str) 
     row.update(
         {
             "seed": task.seed,
+            "noisy": task.noisy,
             "method": task.method.label,
             "render_key": task.render_key,
             "renderer": sweep.renderer.name,

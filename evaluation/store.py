@@ -3,6 +3,8 @@
 Layout of a sweep's output folder::
 
     DIR/sweep.json          what ran: sweep name, hash of its task list, task count
+    DIR/environment.json    where it ran: a list of environments (packages, CPU, Mitsuba
+                            variant, commit), one per distinct machine that ran tasks
     DIR/parts/<id>.parquet  one row per finished task, written atomically (temp + rename)
     DIR/results.parquet     every row in task order, written only when every task has its row
     DIR/renders/            the render cache (mitsuba renderer)
@@ -27,10 +29,12 @@ from nearlight.errors import UserError
 
 RESULTS = "results.parquet"
 MANIFEST = "sweep.json"
+ENVIRONMENT = "environment.json"
 PARTS = "parts"
 
 
-def _atomic_write(path: Path, write: Any) -> None:
+def atomic_write(path: Path, write: Any) -> None:
+    """Call ``write(tmp)`` on a temporary sibling of ``path``, then rename it onto ``path`` (never half a file)."""
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
     os.close(fd)
     try:
@@ -72,8 +76,20 @@ class ResultStore:
                     "choose another --out or remove it"
                 )
         else:
-            _atomic_write(manifest, lambda tmp: Path(tmp).write_text(json.dumps(doc, indent=2) + "\n"))
+            atomic_write(manifest, lambda tmp: Path(tmp).write_text(json.dumps(doc, indent=2) + "\n"))
         self.n_tasks = n_tasks
+        self._record_environment()
+
+    def _record_environment(self) -> None:
+        """Add this process's environment to ``environment.json`` unless an identical record is there."""
+        from nearlight.evaluation.environment import collect
+
+        envs = read_environments(self.out)
+        here = collect()
+        if here not in envs:
+            envs.append(here)
+            text = json.dumps(envs, indent=2) + "\n"
+            atomic_write(self.out / ENVIRONMENT, lambda tmp: Path(tmp).write_text(text))
 
     @property
     def cache_dir(self) -> Path:
@@ -87,7 +103,7 @@ class ResultStore:
     def write_row(self, row: dict[str, Any]) -> None:
         """Write one finished task's row (atomically) as ``parts/<task_id>.parquet``."""
         path = self.out / PARTS / f"{row['task_id']}.parquet"
-        _atomic_write(path, lambda tmp: pd.DataFrame([row]).to_parquet(tmp, index=False))
+        atomic_write(path, lambda tmp: pd.DataFrame([row]).to_parquet(tmp, index=False))
 
     def consolidate(self) -> pd.DataFrame | None:
         """Write ``results.parquet`` if every task has its row; return the table, or None if incomplete."""
@@ -96,8 +112,28 @@ class ResultStore:
         if len(df) != self.n_tasks:
             target.unlink(missing_ok=True)
             return None
-        _atomic_write(target, lambda tmp: df.to_parquet(tmp, index=False))
+        atomic_write(target, lambda tmp: df.to_parquet(tmp, index=False))
         return df
+
+
+def read_environments(out: str | os.PathLike) -> list[dict[str, Any]]:
+    """The environment records of a results folder (empty when it has none).
+
+    Raises
+    ------
+    UserError
+        When ``environment.json`` is not a JSON list of records.
+    """
+    path = Path(out) / ENVIRONMENT
+    if not path.is_file():
+        return []
+    try:
+        envs = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UserError(f"{path}: damaged ({exc}); delete it, the next run writes it again") from None
+    if not (isinstance(envs, list) and all(isinstance(e, dict) for e in envs)):
+        raise UserError(f"{path}: expected a JSON list of environment records; delete it, the next run writes it again")
+    return envs
 
 
 def read_parts(out: str | os.PathLike) -> pd.DataFrame:

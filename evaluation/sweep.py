@@ -6,7 +6,9 @@ of the axes' values × seeds × methods is the task list, in a fixed order; each
 task has a stable id (a hash of what it is), so a re-run finds the tasks already
 done. Axes that change what is rendered make *physical configurations*; the
 others (``noise``, ``range_noise``, the seed, the method) are applied after
-rendering and share the render.
+rendering and share the render. A configuration without camera or range noise
+is deterministic: it runs once, with the first seed (more seeds would repeat
+the same numbers).
 
 See the README section "Sweep files" for the keys; :data:`AXES` documents each axis.
 """
@@ -117,6 +119,11 @@ class Task:
     seed: int
     method: Method
 
+    @property
+    def noisy(self) -> bool:
+        """Whether the task's numbers depend on its seed (camera or range noise)."""
+        return self.noise is not None or self.range_noise > 0
+
 
 @dataclasses.dataclass(frozen=True)
 class Sweep:
@@ -225,7 +232,7 @@ def load_sweep(source: str | Path | Mapping[str, Any], *, check_methods: bool = 
         config = {n: _column_value(label) for n, (label, _) in chosen.items()}
         noise = chosen["noise"][1] if "noise" in chosen else None
         range_noise = float(chosen["range_noise"][1]) if "range_noise" in chosen else 0.0
-        for seed in seeds:
+        for seed in seeds if (noise is not None or range_noise > 0) else seeds[:1]:
             for m in methods:
                 tid = _hash([spec.renderer, scene, noise, range_noise, seed, m.label, m.method, m.options])
                 tasks.append(Task(len(tasks), tid, config, scene, key, noise, range_noise, seed, m))

@@ -48,6 +48,35 @@ def find_libllvm() -> str | None:
     return None if best is None else best[1]
 
 
+def planned_variant() -> tuple[str, str | None]:
+    """The variant :func:`mitsuba` will select, and the libLLVM it will use, without importing Mitsuba.
+
+    Returns
+    -------
+    variant : str
+        :data:`LLVM_VARIANT` or :data:`SCALAR_VARIANT`.
+    libllvm : str or None
+        ``DRJIT_LIBLLVM_PATH`` when the user set it, else the library
+        :func:`find_libllvm` found (None for the scalar variant).
+
+    Raises
+    ------
+    UserError
+        ``NEARLIGHT_MITSUBA_VARIANT`` names neither variant.
+    """
+    forced = os.environ.get("NEARLIGHT_MITSUBA_VARIANT")
+    if forced not in (None, "", LLVM_VARIANT, SCALAR_VARIANT):
+        from nearlight.errors import UserError
+
+        raise UserError(f"NEARLIGHT_MITSUBA_VARIANT: expected {LLVM_VARIANT} or {SCALAR_VARIANT}, got {forced!r}")
+    if forced == SCALAR_VARIANT:
+        return SCALAR_VARIANT, None
+    lib = os.environ.get("DRJIT_LIBLLVM_PATH") or find_libllvm()
+    if forced == LLVM_VARIANT or lib is not None:
+        return LLVM_VARIANT, lib
+    return SCALAR_VARIANT, None
+
+
 @cache
 def mitsuba() -> ModuleType:
     """The ``mitsuba`` module with the generator's variant set (see module doc).
@@ -58,30 +87,19 @@ def mitsuba() -> ModuleType:
         ``mitsuba``; ``mitsuba.variant()`` is :data:`LLVM_VARIANT` or
         :data:`SCALAR_VARIANT`.
     """
-    forced = os.environ.get("NEARLIGHT_MITSUBA_VARIANT")
-    if forced not in (None, "", LLVM_VARIANT, SCALAR_VARIANT):
-        from nearlight.errors import UserError
-
-        raise UserError(f"NEARLIGHT_MITSUBA_VARIANT: expected {LLVM_VARIANT} or {SCALAR_VARIANT}, got {forced!r}")
-    user_set = "DRJIT_LIBLLVM_PATH" in os.environ
-    if not user_set and forced != SCALAR_VARIANT:
-        lib = find_libllvm()
-        if lib is not None:
-            os.environ["DRJIT_LIBLLVM_PATH"] = lib
+    variant, lib = planned_variant()
+    if lib is not None and "DRJIT_LIBLLVM_PATH" not in os.environ:
+        os.environ["DRJIT_LIBLLVM_PATH"] = lib
     import mitsuba as mi
 
-    if forced:
-        mi.set_variant(forced)
-    elif user_set or "DRJIT_LIBLLVM_PATH" in os.environ:
-        mi.set_variant(LLVM_VARIANT)
-    else:
+    if variant == SCALAR_VARIANT and not os.environ.get("NEARLIGHT_MITSUBA_VARIANT"):
         warnings.warn(
             f"no libLLVM >= {MIN_LLVM} found (set DRJIT_LIBLLVM_PATH); rendering with the slow "
             f"{SCALAR_VARIANT} variant",
             ScalarFallbackWarning,
             stacklevel=2,
         )
-        mi.set_variant(SCALAR_VARIANT)
+    mi.set_variant(variant)
     from nearlight.generator import bsdfs, lamp
 
     bsdfs.register(mi)

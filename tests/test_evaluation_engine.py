@@ -3,6 +3,7 @@ local processes and Dask give the same rows, re-runs are identical, compare and 
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -57,7 +58,7 @@ SWEEP = {
     "seeds": 2,
     "methods": ["nl_fake_estimators:oracle", "nl_fake_estimators:noisy", "nl_fake_estimators:broken"],
 }
-N_TASKS = 2 * 2 * 2 * 3
+N_TASKS = 2 * (1 + 2) * 3  # distances x (noise-free: 1 seed, noisy: 2 seeds) x methods
 IGNORED = ["runtime_s"]  # wall time differs between runs by nature
 
 
@@ -187,27 +188,33 @@ def test_another_sweep_into_the_same_folder_is_refused(first_run, sweep_file, tm
 
 def test_compare_zero_on_itself_and_nonzero_when_worse(first_run, tmp_path):
     out = first_run[0]
-    worse, lines = compare_dirs(out, out)
-    assert worse == [] and lines[-1].startswith("ok: no metric worse")
+    checks, lines = compare_dirs(out, out)
+    assert not any(c.regression for c in checks) and lines[-1].startswith("ok: nothing worse")
+    assert {c.kind for c in checks} == {"exact", "pooled"}
+    # the environment recorded beside the results is the one compare finds
+    assert "environment: same as the baseline's" in lines
     bad = tmp_path / "worse"
     shutil.copytree(out, bad)
     df = pd.read_parquet(bad / "results.parquet")
-    sel = df["method"] == "nl_fake_estimators:noisy"
+    sel = (df["method"] == "nl_fake_estimators:noisy") & (df["noise"] == "none")
     df.loc[sel, "direction_error_deg"] *= 1.5  # 50 % worse, well beyond the default 5 %
     df.to_parquet(bad / "results.parquet", index=False)
-    worse, _ = compare_dirs(bad, out)
-    assert len(worse) == 1 and worse[0].startswith("nl_fake_estimators:noisy: direction_error_deg")
+    worse = [c for c in compare_dirs(bad, out)[0] if c.regression]
+    assert {(c.method, c.metric, c.kind) for c in worse} == {("nl_fake_estimators:noisy", "direction_error_deg", "exact")}
     # within tolerance: not a regression
-    assert compare_dirs(bad, out, tolerance=0.6)[0] == []
+    assert not any(c.regression for c in compare_dirs(bad, out, tolerance=0.6)[0])
     # a task that worked and now fails is a regression
-    df.loc[df.index[0], ["status", "error"]] = ["error", "boom"]
+    first_ok = df.index[(df["status"] == "ok") & (df["noise"] == "none")][0]
+    df.loc[first_ok, ["status", "error"]] = ["error", "boom"]
     df.to_parquet(bad / "results.parquet", index=False)
-    assert any("ok in baseline, now error" in w for w in compare_dirs(bad, out, tolerance=0.6)[0])
+    assert any(c.metric == "failures" and c.regression for c in compare_dirs(bad, out, tolerance=0.6)[0])
 
     from nearlight.cli import main
 
     assert main(["compare", str(out), str(out)]) == 0
-    assert main(["compare", str(bad), str(out)]) == 1
+    assert main(["compare", str(bad), str(out), "--json", str(tmp_path / "verdict.json")]) == 1
+    doc = json.loads((tmp_path / "verdict.json").read_text())
+    assert doc["regression"] is True and doc["counts"]["worse"] >= 1 and len(doc["checks"]) == len(checks)
 
 
 def test_report_tables_and_plots(first_run):
@@ -217,7 +224,7 @@ def test_report_tables_and_plots(first_run):
         assert (folder / name).is_file() and (folder / name).stat().st_size > 0, name
     overall = pd.read_csv(folder / "overall.csv")
     o = overall[(overall["method"] == "nl_fake_estimators:oracle") & (overall["metric"] == "lamp_position_error_m")]
-    assert o[["mean", "median", "p90"]].to_numpy().tolist() == [[0.0, 0.0, 0.0]] and int(o["n"].iloc[0]) == 8
+    assert o[["mean", "median", "p90"]].to_numpy().tolist() == [[0.0, 0.0, 0.0]] and int(o["n"].iloc[0]) == 6  # 2 distances x (1 + 2 seeds)
     crlb = pd.read_csv(folder / "crlb.csv")
     assert set(crlb["noise"]) == {"low"} and (crlb["crlb_lamp_m"] > 0).all()
     # the oracle has zero error: ratio 0; the noisy fake is off by more than the bound allows

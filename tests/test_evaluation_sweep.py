@@ -85,16 +85,19 @@ def test_expansion_product_order_and_shared_renders(tmp_path):
         "methods": ["full", {"name": "paper-fine", "method": "paper", "options": {"dt": 0.0005}}],
     }
     sweep = load_sweep(_write(tmp_path, doc))
-    # 2 distances x 2 noise x 2 range noise x 3 roughness x 2 seeds x 2 methods
-    assert len(sweep.tasks) == 96
+    # 2 distances x 3 roughness x 2 methods x (2 seeds for each of the 3 noisy (noise, range noise)
+    # pairs + 1 seed for the noise-free pair, whose numbers do not depend on the seed)
+    assert len(sweep.tasks) == 2 * 3 * 2 * (3 * 2 + 1) == 84
     # noise, range noise, seed and method re-use a render: 2 x 3 physical configurations
     assert len(sweep.render_keys) == 6
-    assert len({t.task_id for t in sweep.tasks}) == 96
+    assert len({t.task_id for t in sweep.tasks}) == 84
     first = sweep.tasks[0]
     assert first.config == {"lamp_distance": 0.3, "noise": "none", "range_noise": 0.0, "roughness": 0.05}
     assert (first.seed, first.method.label) == (3, "full")
     assert sweep.tasks[1].method.label == "paper-fine" and sweep.tasks[1].method.options == {"dt": 0.0005}
-    assert sweep.tasks[2].seed == 4
+    assert [t.seed for t in sweep.tasks[:2]] == [3, 3] and not first.noisy  # noise-free: one seed
+    noisy = [t for t in sweep.tasks if t.noisy]
+    assert [(t.seed, t.method.label) for t in noisy[:4]] == [(3, "full"), (3, "paper-fine"), (4, "full"), (4, "paper-fine")]
     low = [t for t in sweep.tasks if t.config["noise"] == "low"]
     assert low[0].noise == {"read_noise": 1.0} and low[0].render_key == first.render_key
     # ids are stable: loading again gives the same ids and hash
