@@ -13,6 +13,7 @@ catches.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -42,11 +43,27 @@ def further_along_ray(capture: Capture, *, method: str = "full", fraction: float
         surface point where the estimated lamp's highlight lies (the centroid of the surface
         when the capture has no normals).
     """
-    est = estimate(capture, method=method, **options)
+    return moved_along_ray(capture, estimate(capture, method=method, **options), fraction)
+
+
+def moved_along_ray(capture: Capture, est: Estimate, fraction: float) -> Estimate:
+    """A copy of ``est`` with its lamp ``fraction`` of its distance further from the highlight.
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture ``est`` was made from (its ``P`` and ``N`` place the highlight).
+    est : Estimate
+    fraction : float
+
+    Returns
+    -------
+    Estimate
+        ``lamp_position = h + (1 + fraction)·(lamp − h)``, ``h`` as in :func:`further_along_ray`.
+    """
     lamp = np.asarray(est.lamp_position, dtype=float)
     if capture.N is not None:
         origin = highlight_point(capture.P, capture.N, capture.camera.position, lamp)
     else:
         origin = np.nanmean(capture.P[capture.surface_mask], axis=0)
-    est.lamp_position = origin + (1.0 + fraction) * (lamp - origin)
-    return est
+    return dataclasses.replace(est, lamp_position=origin + (1.0 + fraction) * (lamp - origin))
