@@ -321,9 +321,10 @@ def _vector(x: Any, where: Path, key: str, shape: tuple[int, ...] | None) -> np.
 def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Write ``capture`` as a capture directory, atomically.
 
-    Both files are written into a temporary sibling directory which is renamed
-    into place only when complete, so an interrupted write never leaves a
-    directory that looks like a finished capture.
+    Both files are written into a temporary sibling directory
+    (``.<name>.<random>.partial``) which is renamed into place only when
+    complete, so an interrupted write never leaves a directory that looks like
+    a finished capture.
 
     Parameters
     ----------
@@ -331,7 +332,10 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
     path : path-like
         The capture directory to create.
     overwrite : bool, optional
-        Replace an existing capture directory at ``path``.
+        Replace an existing capture directory at ``path``. Only a capture
+        (:func:`nearlight.outputs.is_capture_dir`: exactly ``capture.json``
+        and ``capture.exr``) is ever replaced; anything else at ``path`` is
+        refused and left untouched.
 
     Returns
     -------
@@ -341,18 +345,20 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
     Raises
     ------
     UserError
-        When ``path`` exists (and ``overwrite`` is false) or cannot be written.
+        When ``path`` exists (and ``overwrite`` is false, or it is not a
+        capture) or cannot be written.
     """
     import OpenEXR
 
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise UserError(f"{path}: already exists (choose another --out or remove it)")
+    from nearlight.outputs import check_capture_out, is_capture_dir
+
+    path = check_capture_out(path, overwrite=overwrite)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
     except OSError as exc:
         raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None
+    old = None
     try:
         (tmp / JSON_NAME).write_text(json.dumps(capture_json(capture), indent=2) + "\n")
         if OpenEXR.global_thread_count() == 0:
@@ -361,15 +367,27 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
             OpenEXR.set_global_thread_count(os.cpu_count() or 1)
         header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
         OpenEXR.File(header, _channels(capture)).write(str(tmp / EXR_NAME))
-        if path.exists():
-            shutil.rmtree(path)
+        if path.exists() or path.is_symlink():
+            # Checked again at the last moment: only a capture is ever replaced. The old
+            # capture is moved aside first, so a failure here keeps one of the two whole.
+            if not is_capture_dir(path):
+                check_capture_out(path, overwrite=overwrite)
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+            path.rename(old / "capture")
         tmp.rename(path)
     except OSError as exc:
         shutil.rmtree(tmp, ignore_errors=True)
+        if old is not None and not path.exists() and (old / "capture").exists():
+            (old / "capture").rename(path)
         raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        if old is not None and not path.exists() and (old / "capture").exists():
+            (old / "capture").rename(path)
         raise
+    finally:
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
     return path
 
 
