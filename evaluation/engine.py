@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from nearlight.evaluation.store import ResultStore
+from nearlight.evaluation.store import MANIFEST, ResultStore, read_manifest, set_aside_damaged_parts
 from nearlight.evaluation.sweep import Sweep, Task
 from nearlight.evaluation.tasks import run_task
 
@@ -191,7 +191,11 @@ def run_sweep(
     from tqdm import tqdm
 
     t_start = time.perf_counter()
+    if (Path(out) / MANIFEST).exists():
+        read_manifest(out)  # a damaged sweep.json is a one-line error naming it, before anything runs
     store = ResultStore(out, name=sweep.name, sweep_hash=sweep.sweep_hash, n_tasks=len(sweep.tasks), axes=list(sweep.axes))
+    for moved in set_aside_damaged_parts(out):
+        print(f"nearlight: note: a damaged result part was moved to {moved}; its task runs again", file=sys.stderr)
     done = store.done_ids()
     todo = [t for t in sweep.tasks if t.task_id not in done]
     version = code_version()

@@ -331,14 +331,27 @@ EXPERIMENTS: dict[str, Callable[[_Run], dict[str, Any]]] = {
 }
 
 
+#: Every file ``reproduce`` writes into its folder, with its kind (see
+#: :mod:`nearlight.outputs`): an existing file there is replaced only when it
+#: is of that kind; other files in the folder are left alone.
+REPORT_FILES: dict[str, str] = {
+    "paper_reproduction.json": "reproduction-json",
+    "paper_reproduction.md": "reproduction-md",
+    **{f"figures/{name}": "png" for name in ("fig3_board.png", "bookend_separation.png", "bookend_synthesis.png",
+                                             "curved_separation.png", "curved_synthesis.png", "near_vs_distant.png")},
+}  # fmt: skip
+
+
 def reproduce(out: str | Path, *, quick: bool = False, progress: bool = True) -> Path:
     """Run every experiment and write the report.
 
     Parameters
     ----------
     out : path-like
-        Report folder (created; an earlier report there is replaced, renders
-        are re-used from its ``.render-cache``).
+        Report folder (created). An earlier report there is replaced, file by
+        file (:data:`REPORT_FILES`), only where each file is of the kind
+        ``reproduce`` writes; anything else there is refused before any work
+        and left untouched. Renders are re-used from its ``.render-cache``.
     quick : bool, optional
         Small images and a 4-angle camera (:data:`QUICK`), for tests.
     progress : bool, optional
@@ -349,11 +362,14 @@ def reproduce(out: str | Path, *, quick: bool = False, progress: bool = True) ->
     Path
         ``out / "paper_reproduction.md"``.
     """
+    from nearlight.outputs import check_files_in, check_folder, make_folder
+
     out = Path(out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UserError(f"{out}: cannot write there ({exc.strerror or exc})") from None
+    check_folder(out, what="report folder")
+    check_folder(out / "figures", what="figures folder")
+    check_folder(out / ".render-cache", what="render cache folder")
+    check_files_in(out, REPORT_FILES)
+    make_folder(out, what="report folder")
     profile = QUICK if quick else FULL
     run = _Run(out, profile, progress)
     start = time.perf_counter()

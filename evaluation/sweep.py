@@ -71,6 +71,8 @@ class _SweepFile(BaseModel):
             raise ValueError("expected a positive count or a list of integers")
         if isinstance(v, list) and (not v or len(set(v)) != len(v)):
             raise ValueError("expected a non-empty list of distinct integers")
+        if isinstance(v, list) and min(v) < 0:
+            raise ValueError(f"expected seeds >= 0 (as capture.seed), got {min(v)}")
         return v
 
 
