@@ -20,10 +20,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from nearlight.dotted import get_dotted, set_dotted
 from nearlight.errors import UserError
+from nearlight.yamlfile import load_yaml_file
 
 
 def convert_material(material: dict, model: str) -> dict:
@@ -69,10 +69,7 @@ class Renderer:
         path = Path(scene) if Path(scene).is_absolute() else base_dir / scene
         if not path.is_file():
             raise UserError(f"{where}: no such scene file {str(path)!r}")
-        try:
-            doc = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as exc:
-            raise UserError(f"{path}: not valid YAML: {getattr(exc, 'problem', exc)}") from None
+        doc = load_yaml_file(path, what="scene file")
         if not isinstance(doc, dict):
             raise UserError(f"{path}: expected a mapping of scene sections")
         return doc

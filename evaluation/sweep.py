@@ -23,10 +23,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from nearlight.errors import UserError
+from nearlight.yamlfile import load_yaml_file
 from nearlight.dotted import set_dotted
 from nearlight.evaluation.renderers import RENDERERS, Renderer
 
@@ -180,12 +180,7 @@ def load_sweep(source: str | Path | Mapping[str, Any], *, check_methods: bool = 
         path, base_dir = str(p), p.parent
         if not p.is_file():
             raise UserError(f"{p}: no such sweep file")
-        try:
-            doc = yaml.safe_load(p.read_text())
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            where = f" (line {mark.line + 1})" if mark else ""
-            raise UserError(f"{p}: not valid YAML{where}: {getattr(exc, 'problem', exc)}") from None
+        doc = load_yaml_file(p, what="sweep file")
         if not isinstance(doc, dict):
             raise UserError(f"{p}: expected a mapping of sweep keys (name, scene, axes, seeds, methods)")
     try:
