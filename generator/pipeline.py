@@ -8,7 +8,7 @@ from pathlib import Path
 from nearlight.capture import write_capture
 from nearlight.outputs import check_capture_out, check_folder
 from nearlight.generator.noise import add_camera_noise, add_range_noise
-from nearlight.generator.render import render_clean
+from nearlight.generator.render import check_memory, render_clean
 from nearlight.generator.scene import Scene
 
 
@@ -45,6 +45,7 @@ def render_capture(scene: Scene, out_dir: str | os.PathLike, *, cache_dir: str |
     """
     out = Path(out_dir)
     check_writable(out, overwrite=overwrite)
+    check_memory(scene)
     if cache_dir is not None:
         check_folder(cache_dir, what="render cache folder")
     capture = render_clean(scene, cache_dir=cache_dir, progress=progress)
