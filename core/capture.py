@@ -14,6 +14,7 @@ top, float32 linear radiance; positions in metres in the world frame.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -21,6 +22,7 @@ import os
 import re
 import shutil
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -275,11 +277,19 @@ def _read_layers(exr_path: Path, height: int, width: int) -> dict[str, dict[str,
     """``{layer: {channel suffix: [H, W] float32}}``; suffix ``""`` for undotted names."""
     import OpenEXR
 
-    try:
-        with OpenEXR.File(str(exr_path), separate_channels=True) as f:
-            channels = {name: ch.pixels for name, ch in f.channels().items()}
-    except Exception as exc:  # OpenEXR raises bare RuntimeError/Exception on corrupt files
-        raise UserError(f"{exr_path}: not a readable OpenEXR file ({exc})") from None
+    with _quiet_fds() as chatter:
+        try:
+            with OpenEXR.File(str(exr_path), separate_channels=True) as f:
+                channels = {name: ch.pixels for name, ch in f.channels().items()}
+            error = None
+        except Exception as exc:  # OpenEXR raises bare RuntimeError/Exception on corrupt files
+            error = exc
+    said = [line.replace(f"{exr_path}: ", "") for line in chatter if line.strip()]
+    if error is not None or said:
+        # OpenEXR's own messages (written straight to the terminal by its C++ core) say more
+        # than its exception: the first one becomes the reason.
+        reason = said[0] if said else str(error)
+        raise UserError(f"{exr_path}: not a readable OpenEXR file (damaged or truncated: {reason})")
     layers: dict[str, dict[str, np.ndarray]] = {}
     for name, pix in channels.items():
         if pix.shape != (height, width):
@@ -292,6 +302,40 @@ def _read_layers(exr_path: Path, height: int, width: int) -> dict[str, dict[str,
         base, _, suffix = name.rpartition(".") if "." in name else (name, "", "")
         layers.setdefault(base, {})[suffix] = pix.astype(np.float32, copy=False)
     return layers
+
+
+@contextlib.contextmanager
+def _quiet_fds() -> Iterator[list[str]]:
+    """Send what C/C++ code writes to file descriptors 1 and 2 to a list of lines instead of the terminal.
+
+    OpenEXR reports damaged files on stderr/stdout itself, beside its exception;
+    nearlight's one error line must be all the user sees.
+    """
+    import sys
+
+    lines: list[str] = []
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+    try:
+        saved = [os.dup(1), os.dup(2)]
+    except OSError:  # no such descriptors (embedded): nothing to hide
+        yield lines
+        return
+    with tempfile.TemporaryFile() as sink:
+        try:
+            os.dup2(sink.fileno(), 1)
+            os.dup2(sink.fileno(), 2)
+            yield lines
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+            sink.seek(0)
+            lines.extend(sink.read(1 << 16).decode("utf-8", errors="replace").splitlines())
 
 
 def _is_number(x: Any) -> bool:

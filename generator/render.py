@@ -425,6 +425,34 @@ def _save_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
         raise
 
 
+#: Scratch folders of renders (mesh files for Mitsuba) in the temporary folder:
+#: ``nearlight-render-<pid>-<random>``. They are removed when the render ends,
+#: also on SIGTERM and Ctrl-C; one left by a render killed with SIGKILL is
+#: removed by the next render once its process is gone.
+SCRATCH_PREFIX = "nearlight-render-"
+
+
+def _remove_stale_scratch() -> None:
+    """Remove scratch folders of this user's renders whose process no longer runs."""
+    import shutil
+
+    root = Path(tempfile.gettempdir())
+    try:
+        entries = list(root.glob(f"{SCRATCH_PREFIX}*-*"))
+    except OSError:
+        return
+    for folder in entries:
+        pid = folder.name[len(SCRATCH_PREFIX):].split("-", 1)[0]
+        try:
+            if not pid.isdigit() or folder.is_symlink() or folder.stat().st_uid != os.getuid():
+                continue
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(folder, ignore_errors=True)
+        except OSError:
+            continue
+
+
 _MITSUBA_TAG = re.compile(r"\[[a-z_]+\.cpp:\d+\]\s*|(?:At|While loading) dictionary node \"root\":\s*")
 
 
@@ -462,7 +490,8 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
     else:
         passes = [(p, c) for c in range(3) for p in (("specular", "diffuse", "full") if analytic else ("full",))]
     spp = scene.capture.spp
-    with tempfile.TemporaryDirectory(prefix="nearlight-") as scratch, tqdm(
+    _remove_stale_scratch()
+    with tempfile.TemporaryDirectory(prefix=f"{SCRATCH_PREFIX}{os.getpid()}-") as scratch, tqdm(
         total=len(passes) * spp, desc=f"render ({len(passes)} passes)", unit="spp", disable=not progress, leave=False
     ) as bar:
         stokes: dict[str, np.ndarray] = {}
