@@ -348,9 +348,16 @@ def _positive_int(x: Any, where: Path, key: str) -> int:
     return x
 
 
+def _all_numbers(x: Any) -> bool:
+    """Nested lists of JSON numbers only (numpy would also turn ``"135"`` or ``true`` into a float)."""
+    if isinstance(x, list):
+        return all(_all_numbers(v) for v in x)
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
 def _vector(x: Any, where: Path, key: str, shape: tuple[int, ...] | None) -> np.ndarray:
     try:
-        arr = np.asarray(x, dtype=float)
+        arr = np.asarray(x, dtype=float) if _all_numbers(x) else None
     except (TypeError, ValueError):
         arr = None
     if arr is None or arr.dtype == object or not np.all(np.isfinite(arr)) or (shape is not None and arr.shape != shape):

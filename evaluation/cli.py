@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+from pathlib import Path
+from typing import Any
 
 from nearlight.errors import UserError
 
@@ -63,6 +65,7 @@ def _sweep(args: argparse.Namespace) -> int:
 
     check_folder(args.out, what="results folder")
     sweep = load_sweep(args.sweep)
+    _check_resumable(Path(args.out), sweep)
     where = f"Dask scheduler {args.scheduler}" if args.scheduler else f"{args.workers} local worker(s)"
     print(
         f"sweep {sweep.name}: {len(sweep.tasks)} tasks, {len(sweep.render_keys)} physical configurations, "
@@ -83,6 +86,19 @@ def _sweep(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return 0 if s.complete else 1
+
+
+def _check_resumable(out: Path, sweep: Any) -> None:
+    """Before anything is printed or run: a results folder must hold this sweep (or none)."""
+    from nearlight.evaluation.store import MANIFEST, read_manifest
+
+    if (out / MANIFEST).exists():
+        old = read_manifest(out)
+        if old["sweep_hash"] != sweep.sweep_hash:
+            raise UserError(
+                f"{out}: holds results of another sweep ({old['name']!r}, hash {old['sweep_hash']}); "
+                "choose another --out or remove it"
+            )
 
 
 #: A Dask scheduler address: ``[protocol://]host:port``.

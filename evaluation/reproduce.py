@@ -37,7 +37,7 @@ import numpy as np
 from nearlight import __version__
 from nearlight.capture import Capture
 from nearlight.errors import UserError
-from nearlight.figures import panel_grid, tonemap
+from nearlight.figures import panel_grid, save_png, tonemap
 from nearlight.jsonable import jsonable
 
 #: The paper's own numbers, quoted with their section (never computed here).
@@ -317,9 +317,10 @@ def _distance_plot(rows: list[dict[str, Any]], path: Path) -> Path:
     axes[0].legend()
     fig.suptitle("Near vs. distant: the paper's motivation (Fig. 1), measured")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    try:
+        save_png(fig, path)
+    finally:
+        plt.close(fig)
     return path
 
 
