@@ -743,6 +743,18 @@ def _damaged_results_cases() -> None:
 _damaged_results_cases()
 
 
+def _show_twins() -> None:
+    """``show`` reads captures with the same reader: every damaged-file capture case again through ``show``."""
+    for c in [c for c in CASES if c.id.startswith(("capture-exr-", "capture-json-", "capture-no-"))]:
+        @case(f"show-{c.id}")
+        def build(folder, assets, original=c.build):
+            argv, culprit = original(folder, assets)
+            return ["show", argv[1], "--out", str(folder / "sheet.png")], culprit
+
+
+_show_twins()
+
+
 # --------------------------------------------------------------------------- running the cases
 
 
