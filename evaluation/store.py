@@ -123,7 +123,8 @@ def _read_frame(path: Path, *, fix: str) -> pd.DataFrame:
 
 
 def _part_fix(path: Path) -> str:
-    return f"remove it and run the same `nearlight sweep` again to recompute its task ({path.stem})"
+    return (f"run the same `nearlight sweep` again: it moves the damaged part to {PARTS}/damaged/ and "
+            f"recomputes task {path.stem}")
 
 
 def read_parts(out: str | os.PathLike) -> pd.DataFrame:
