@@ -279,9 +279,23 @@ def _read_layers(exr_path: Path, height: int, width: int) -> dict[str, dict[str,
 
     with _quiet_fds() as chatter:
         try:
+            # The header first: a data window other than capture.json's size is refused
+            # before OpenEXR allocates its pixels (a damaged header can claim any size).
+            with OpenEXR.File(str(exr_path), header_only=True) as f:
+                header = f.header()  # read inside: closing the file empties it
+                (x0, y0), (x1, y1) = (np.asarray(v).tolist() for v in header["dataWindow"])
+                first = next((str(c.name) for c in header.get("channels", [])), "*")
+            w, h = int(x1) - int(x0) + 1, int(y1) - int(y0) + 1
+            if (w, h) != (width, height):
+                raise UserError(
+                    f"{exr_path}: channel {first}: shape {h}x{w} does not match capture.json's {height}x{width} "
+                    "(height x width)"
+                )
             with OpenEXR.File(str(exr_path), separate_channels=True) as f:
                 channels = {name: ch.pixels for name, ch in f.channels().items()}
             error = None
+        except UserError:
+            raise
         except Exception as exc:  # OpenEXR raises bare RuntimeError/Exception on corrupt files
             error = exc
     said = [line.replace(f"{exr_path}: ", "") for line in chatter if line.strip()]
@@ -294,8 +308,8 @@ def _read_layers(exr_path: Path, height: int, width: int) -> dict[str, dict[str,
     for name, pix in channels.items():
         if pix.shape != (height, width):
             raise UserError(
-                f"{exr_path}: channel {name}: shape {pix.shape[0]}x{pix.shape[1]} (HxW) does not match "
-                f"capture.json's {height}x{width}"
+                f"{exr_path}: channel {name}: shape {pix.shape[0]}x{pix.shape[1]} does not match "
+                f"capture.json's {height}x{width} (height x width)"
             )
         if pix.dtype.kind not in "f":
             raise UserError(f"{exr_path}: channel {name}: expected FLOAT or HALF, got {pix.dtype}")

@@ -402,15 +402,33 @@ def render_clean(scene: Scene, *, cache_dir: str | os.PathLike | None = None, pr
         try:
             with np.load(cached) as z:
                 arrays = {k: z[k] for k in z.files}
-        except (OSError, ValueError):
+        except (OSError, ValueError, EOFError, KeyError):
             arrays = None  # a damaged cache entry: render again
+        if arrays is not None and not _cache_entry_ok(arrays, scene):
+            arrays = None  # not what this render produces (damaged, or from another version): render again
     else:
         arrays = None
     if arrays is None:
         arrays = _render_arrays(scene, progress=progress)
         if cached is not None:
-            _save_atomic(cached, arrays)
+            try:
+                _save_atomic(cached, arrays)
+            except OSError as exc:  # the render itself is fine: go on without caching it
+                import sys
+
+                print(f"nearlight: note: {cached}: cannot write the render cache ({exc.strerror or exc})",
+                      file=sys.stderr)  # fmt: skip
     return assemble(scene, arrays, key=key)
+
+
+def _cache_entry_ok(arrays: dict[str, np.ndarray], scene: Scene) -> bool:
+    """Whether a cached render has every array :func:`assemble` needs, with this scene's shapes."""
+    hw = (scene.camera.height, scene.camera.width)
+    want = {"P": (*hw, 3), "N": (*hw, 3), "to_world": (4, 4), "stokes_full": (3, *hw, 3)}
+    for part in ("specular", "diffuse"):
+        if f"stokes_{part}" in arrays:
+            want[f"stokes_{part}"] = (3, *hw, 3)
+    return all(k in arrays and arrays[k].shape == shape and arrays[k].dtype.kind == "f" for k, shape in want.items())
 
 
 def _save_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -453,7 +471,7 @@ def _remove_stale_scratch() -> None:
             continue
 
 
-_MITSUBA_TAG = re.compile(r"\[[a-z_]+\.cpp:\d+\]\s*|(?:At|While loading) dictionary node \"root\":\s*")
+_MITSUBA_TAG = re.compile(r"\[[A-Za-z_]+\.(?:cpp|h):\d+\]\s*|(?:At|While loading) dictionary node \"[a-z_.]+\":\s*")
 
 
 def check_mitsuba_bsdf(mi: ModuleType, scene: Scene) -> None:
@@ -473,6 +491,17 @@ def check_mitsuba_bsdf(mi: ModuleType, scene: Scene) -> None:
         except Exception as exc:  # Mitsuba raises RuntimeError/TypeError/ValueError for a bad dict
             reason = " ".join(_MITSUBA_TAG.sub("", str(exc)).split()) or type(exc).__name__
             raise UserError(f"{scene.source}: material.bsdf: Mitsuba cannot load it: {reason}") from None
+
+
+def _load_scene(mi: ModuleType, scene: Scene, doc: dict) -> Any:
+    """``mi.load_dict`` of a scene; a mesh file Mitsuba cannot read is a :class:`UserError` naming ``object.file``."""
+    try:
+        return mi.load_dict(doc)
+    except Exception as exc:
+        if scene.object.type != "mesh":
+            raise  # our own scene dict: a bug, keep the traceback
+        reason = " ".join(_MITSUBA_TAG.sub("", str(exc)).split()) or type(exc).__name__
+        raise UserError(f"{scene.source}: object.file: Mitsuba cannot load {scene.object.file}: {reason}") from None
 
 
 def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
@@ -496,7 +525,7 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
     ) as bar:
         stokes: dict[str, np.ndarray] = {}
         for i, (part, channel) in enumerate(passes):
-            mscene = mi.load_dict(scene_dict(mi, scene, part=part, channel=channel, scratch=Path(scratch)))
+            mscene = _load_scene(mi, scene, scene_dict(mi, scene, part=part, channel=channel, scratch=Path(scratch)))
             if i == 0:  # every pass has the same geometry: check it before any rendering
                 P, N = surface(mi, mscene)
                 _check_geometry(mi, scene, mscene, P)

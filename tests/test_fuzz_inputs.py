@@ -242,6 +242,28 @@ def _mitsuba_material_cases() -> None:
 _mitsuba_material_cases()
 
 
+def _mesh_file_cases() -> None:
+    plys = {"not-ply": b"garbage, not a PLY\n", "empty": b"",
+            "cut-short": b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1 2\n",
+            "binary-noise": bytes(random.Random(f"{SEED}-ply").randrange(256) for _ in range(400))}  # fmt: skip
+    for name, data in plys.items():
+        @case(f"scene-mesh-file-{name}")
+        def build(folder, assets, data=data):
+            _write(folder / "m.ply", data)
+            doc = copy.deepcopy(SCENE)
+            doc["object"] = {"type": "mesh", "file": "m.ply"}
+            return _render_argv(_write(folder / "scene.yaml", _dump(doc)), folder), "object.file"
+
+    @case("scene-mesh-file-missing")
+    def build(folder, assets):
+        doc = copy.deepcopy(SCENE)
+        doc["object"] = {"type": "mesh", "file": "nowhere.ply"}
+        return _render_argv(_write(folder / "scene.yaml", _dump(doc)), folder), "object.file"
+
+
+_mesh_file_cases()
+
+
 # --------------------------------------------------------------------------- sweep files
 
 SWEEP = {
@@ -409,7 +431,7 @@ def _json_mutation_cases() -> None:
             else:
                 doc[key] = value
             path.write_text(json.dumps(doc))
-            return _estimate_argv(cap, folder), str(cap)
+            return _estimate_argv(cap, folder), key.split(".")[-1]
 
     for key in ("format", "width", "height", "camera", "camera.position"):
         @case(f"capture-json-missing-{key}")
@@ -422,7 +444,7 @@ def _json_mutation_cases() -> None:
             else:
                 del doc[key]
             path.write_text(json.dumps(doc))
-            return _estimate_argv(cap, folder), str(cap)
+            return _estimate_argv(cap, folder), key.split(".")[-1]
 
     for n in range(6):  # the text cut short, or a random byte swapped for a non-UTF-8 one
         seed = rng.randrange(1 << 30)
