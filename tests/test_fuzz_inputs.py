@@ -302,7 +302,9 @@ def _sweep_case(key: str, value: Any, i: int) -> None:
         doc = copy.deepcopy(SWEEP)
         doc[key] = value
         path = _write(folder / "sweep.yaml", _dump(doc))
-        return _sweep_argv(path, folder), str(path)
+        # a bad value put in by `set` is named where it lands, in the scene
+        named = "scene: width" if key == "set" and isinstance(value, dict) else key
+        return _sweep_argv(path, folder), f"{path}: {named}"
 
 
 for _key, _values in SWEEP_BREAKS.items():
