@@ -216,11 +216,12 @@ case("scene-missing-file")(lambda folder, assets: (_render_argv(folder / "nope.y
 def _set_option_cases() -> None:
     scene = ROOT / "scenes" / "ts_board.yaml"
     for n, item in enumerate(["noequals", "=1", "lamp.position=[0,", "lamp.position.x=1", "camera=5",
-                              "camera.resolution=[0,0]", "material.sigma=-1", "nosuch.key=1"]):  # fmt: skip
+                              "camera.resolution=[0,0]", "material.sigma=-1", "nosuch.key=1", ".=5", "a..b=1"]):  # fmt: skip
         @case(f"render-set-{n}")
         def build(folder, assets, item=item):
             argv = _render_argv(scene, folder, "--set", item)
-            culprit = {"noequals": "--set", "=1": "--set", "lamp.position=[0,": "--set"}.get(item, item.split("=")[0].split(".")[0])
+            culprit = {"noequals": "--set", "=1": "--set", "lamp.position=[0,": "--set", ".=5": "'.'",
+                       "a..b=1": "'a..b'"}.get(item, item.split("=")[0].split(".")[0])  # fmt: skip
             return argv, culprit
 
 
