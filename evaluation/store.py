@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -108,6 +109,13 @@ def _damaged(path: Path, why: str, fix: str) -> UserError:
     return UserError(f"{path}: damaged ({why}); {fix}")
 
 
+def _first_sentence(exc: BaseException) -> str:
+    """The first sentence of an exception's message, without the file name it repeats."""
+    text = " ".join(str(exc).split())
+    text = re.sub(r"^Could not open Parquet input source '[^']*': ", "", text)
+    return re.split(r"(?<=\.) ", text, maxsplit=1)[0][:160].rstrip(".")
+
+
 def _read_frame(path: Path, *, fix: str) -> pd.DataFrame:
     """One Parquet file with the required columns, or a :class:`UserError` naming it."""
     import pyarrow
@@ -115,7 +123,7 @@ def _read_frame(path: Path, *, fix: str) -> pd.DataFrame:
     try:
         df = pd.read_parquet(path)
     except (OSError, ValueError, pyarrow.ArrowException) as exc:
-        raise _damaged(path, f"not a readable Parquet file: {' '.join(str(exc).split())[:120]}", fix) from None
+        raise _damaged(path, f"not a readable Parquet file: {_first_sentence(exc)}", fix) from None
     missing = [c for c in REQUIRED_COLUMNS if c not in df.columns]
     if missing:
         raise _damaged(path, f"column {missing[0]} missing", fix)

@@ -187,7 +187,7 @@ def load_sweep(source: str | Path | Mapping[str, Any], *, check_methods: bool = 
         spec = _SweepFile.model_validate(doc)
     except ValidationError as exc:
         err = exc.errors()[0]
-        raise UserError(f"{_where(path, err['loc'])}: {err['msg']}") from None
+        raise UserError(f"{_where(path, err['loc'])}: {err['msg'].removeprefix('Value error, ')}") from None
 
     renderer = RENDERERS[spec.renderer]()
     base = renderer.load_base(spec.scene, base_dir=base_dir, where=f"{path}: scene")
