@@ -112,6 +112,33 @@ def test_sigkilled_sweep_leaves_no_orphan_workers_and_resumes_to_the_clean_rows(
                                   b[cols].sort_values("task_id").reset_index(drop=True))  # fmt: skip
 
 
+def test_sigterm_ends_a_sweep_and_its_workers_promptly(tmp_path):
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(yaml.safe_dump(dict(SWEEP, methods=[dict(SWEEP["methods"][0], options={"delay": 30.0})]),
+                                    sort_keys=False))  # fmt: skip
+    pids = tmp_path / "pids"
+    pids.mkdir()
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "nearlight", "sweep", str(sweep), "--out", str(out), "--quiet", "--workers", "2"]
+    proc = subprocess.Popen(cmd, env=_env(tmp_path, pids), stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while len(list(pids.iterdir())) < 2 and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    assert proc.poll() is None, proc.stderr.read()
+    start = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    err = proc.communicate(timeout=60)[1]
+    assert proc.returncode == 143 and err.strip().splitlines()[-1] == "nearlight: terminated", err
+    assert time.monotonic() - start < 10, "the sweep waited for its running tasks instead of ending them"
+    workers = [int(p.name) for p in pids.iterdir()]
+    time.sleep(0.5)
+    left = [w for w in workers if _alive(w)]
+    for w in left:
+        os.kill(w, signal.SIGKILL)
+    assert not left
+    assert not list((out / "parts").glob(".*")), "no half-written part may survive"
+
+
 @pytest.mark.render
 def test_sigterm_during_a_render_leaves_no_scratch_and_no_capture(tmp_path):
     scratch = tmp_path / "tmp"

@@ -126,3 +126,20 @@ def test_file_output_names(tmp_path):
     (tmp_path / "d.png").mkdir()
     with pytest.raises(UserError, match="is a folder"):
         check_file_out(tmp_path / "d.png", "png")
+
+
+def test_a_failing_plot_leaves_no_estimate_json_behind(tmp_path, capsys, monkeypatch):
+    from nearlight.estimator import plot as plot_module
+    from nearlight.synthetic import analytic_capture
+
+    cap = write_capture(analytic_capture(width=32, height=24), tmp_path / "cap")
+
+    def fail(capture, estimate, path):
+        raise UserError(f"{path}: cannot write the figure (disk full)")
+
+    monkeypatch.setattr(plot_module, "plot_estimate", fail)
+    argv = ["estimate", str(cap), "--method", "paper-init", "--json", str(tmp_path / "e.json"),
+            "--plot", str(tmp_path / "e.png")]  # fmt: skip
+    assert main(argv) == 2
+    assert "disk full" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cap"]
