@@ -14,6 +14,7 @@ top, float32 linear radiance; positions in metres in the world frame.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -21,6 +22,7 @@ import os
 import re
 import shutil
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -275,23 +277,79 @@ def _read_layers(exr_path: Path, height: int, width: int) -> dict[str, dict[str,
     """``{layer: {channel suffix: [H, W] float32}}``; suffix ``""`` for undotted names."""
     import OpenEXR
 
-    try:
-        with OpenEXR.File(str(exr_path), separate_channels=True) as f:
-            channels = {name: ch.pixels for name, ch in f.channels().items()}
-    except Exception as exc:  # OpenEXR raises bare RuntimeError/Exception on corrupt files
-        raise UserError(f"{exr_path}: not a readable OpenEXR file ({exc})") from None
+    with _quiet_fds() as chatter:
+        try:
+            # The header first: a data window other than capture.json's size is refused
+            # before OpenEXR allocates its pixels (a damaged header can claim any size).
+            with OpenEXR.File(str(exr_path), header_only=True) as f:
+                header = f.header()  # read inside: closing the file empties it
+                (x0, y0), (x1, y1) = (np.asarray(v).tolist() for v in header["dataWindow"])
+                first = next((str(c.name) for c in header.get("channels", [])), "*")
+            w, h = int(x1) - int(x0) + 1, int(y1) - int(y0) + 1
+            if (w, h) != (width, height):
+                raise UserError(
+                    f"{exr_path}: channel {first}: shape {h}x{w} does not match capture.json's {height}x{width} "
+                    "(height x width)"
+                )
+            with OpenEXR.File(str(exr_path), separate_channels=True) as f:
+                channels = {name: ch.pixels for name, ch in f.channels().items()}
+            error = None
+        except UserError:
+            raise
+        except Exception as exc:  # OpenEXR raises bare RuntimeError/Exception on corrupt files
+            error = exc
+    said = [line.replace(f"{exr_path}: ", "") for line in chatter if line.strip()]
+    if error is not None or said:
+        # OpenEXR's own messages (written straight to the terminal by its C++ core) say more
+        # than its exception: the first one becomes the reason.
+        reason = said[0] if said else str(error)
+        raise UserError(f"{exr_path}: not a readable OpenEXR file (damaged or truncated: {reason})")
     layers: dict[str, dict[str, np.ndarray]] = {}
     for name, pix in channels.items():
         if pix.shape != (height, width):
             raise UserError(
-                f"{exr_path}: channel {name}: shape {pix.shape[0]}x{pix.shape[1]} (HxW) does not match "
-                f"capture.json's {height}x{width}"
+                f"{exr_path}: channel {name}: shape {pix.shape[0]}x{pix.shape[1]} does not match "
+                f"capture.json's {height}x{width} (height x width)"
             )
         if pix.dtype.kind not in "f":
             raise UserError(f"{exr_path}: channel {name}: expected FLOAT or HALF, got {pix.dtype}")
         base, _, suffix = name.rpartition(".") if "." in name else (name, "", "")
         layers.setdefault(base, {})[suffix] = pix.astype(np.float32, copy=False)
     return layers
+
+
+@contextlib.contextmanager
+def _quiet_fds() -> Iterator[list[str]]:
+    """Send what C/C++ code writes to file descriptors 1 and 2 to a list of lines instead of the terminal.
+
+    OpenEXR reports damaged files on stderr/stdout itself, beside its exception;
+    nearlight's one error line must be all the user sees.
+    """
+    import sys
+
+    lines: list[str] = []
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+    try:
+        saved = [os.dup(1), os.dup(2)]
+    except OSError:  # no such descriptors (embedded): nothing to hide
+        yield lines
+        return
+    with tempfile.TemporaryFile() as sink:
+        try:
+            os.dup2(sink.fileno(), 1)
+            os.dup2(sink.fileno(), 2)
+            yield lines
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+            sink.seek(0)
+            lines.extend(sink.read(1 << 16).decode("utf-8", errors="replace").splitlines())
 
 
 def _is_number(x: Any) -> bool:
@@ -304,9 +362,16 @@ def _positive_int(x: Any, where: Path, key: str) -> int:
     return x
 
 
+def _all_numbers(x: Any) -> bool:
+    """Nested lists of JSON numbers only (numpy would also turn ``"135"`` or ``true`` into a float)."""
+    if isinstance(x, list):
+        return all(_all_numbers(v) for v in x)
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
 def _vector(x: Any, where: Path, key: str, shape: tuple[int, ...] | None) -> np.ndarray:
     try:
-        arr = np.asarray(x, dtype=float)
+        arr = np.asarray(x, dtype=float) if _all_numbers(x) else None
     except (TypeError, ValueError):
         arr = None
     if arr is None or arr.dtype == object or not np.all(np.isfinite(arr)) or (shape is not None and arr.shape != shape):
@@ -321,9 +386,10 @@ def _vector(x: Any, where: Path, key: str, shape: tuple[int, ...] | None) -> np.
 def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Write ``capture`` as a capture directory, atomically.
 
-    Both files are written into a temporary sibling directory which is renamed
-    into place only when complete, so an interrupted write never leaves a
-    directory that looks like a finished capture.
+    Both files are written into a temporary sibling directory
+    (``.<name>.<random>.partial``) which is renamed into place only when
+    complete, so an interrupted write never leaves a directory that looks like
+    a finished capture.
 
     Parameters
     ----------
@@ -331,7 +397,10 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
     path : path-like
         The capture directory to create.
     overwrite : bool, optional
-        Replace an existing capture directory at ``path``.
+        Replace an existing capture directory at ``path``. Only a capture
+        (:func:`nearlight.outputs.is_capture_dir`: exactly ``capture.json``
+        and ``capture.exr``) is ever replaced; anything else at ``path`` is
+        refused and left untouched.
 
     Returns
     -------
@@ -341,18 +410,20 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
     Raises
     ------
     UserError
-        When ``path`` exists (and ``overwrite`` is false) or cannot be written.
+        When ``path`` exists (and ``overwrite`` is false, or it is not a
+        capture) or cannot be written.
     """
     import OpenEXR
 
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise UserError(f"{path}: already exists (choose another --out or remove it)")
+    from nearlight.outputs import check_capture_out, is_capture_dir
+
+    path = check_capture_out(path, overwrite=overwrite)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
     except OSError as exc:
         raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None
+    old = None
     try:
         (tmp / JSON_NAME).write_text(json.dumps(capture_json(capture), indent=2) + "\n")
         if OpenEXR.global_thread_count() == 0:
@@ -361,15 +432,27 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
             OpenEXR.set_global_thread_count(os.cpu_count() or 1)
         header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
         OpenEXR.File(header, _channels(capture)).write(str(tmp / EXR_NAME))
-        if path.exists():
-            shutil.rmtree(path)
+        if path.exists() or path.is_symlink():
+            # Checked again at the last moment: only a capture is ever replaced. The old
+            # capture is moved aside first, so a failure here keeps one of the two whole.
+            if not is_capture_dir(path):
+                check_capture_out(path, overwrite=overwrite)
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+            path.rename(old / "capture")
         tmp.rename(path)
     except OSError as exc:
         shutil.rmtree(tmp, ignore_errors=True)
+        if old is not None and not path.exists() and (old / "capture").exists():
+            (old / "capture").rename(path)
         raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        if old is not None and not path.exists() and (old / "capture").exists():
+            (old / "capture").rename(path)
         raise
+    finally:
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
     return path
 
 

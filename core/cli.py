@@ -12,9 +12,12 @@ exit status 2; argparse's own usage errors also exit with 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
 
 from nearlight import __version__
 from nearlight.errors import UserError
@@ -42,14 +45,41 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(BaseException):
+    """Raised in the main thread when the process gets SIGTERM, so that every
+    ``finally`` and ``with`` block runs (scratch folders, partial files and
+    worker processes are cleaned up) before the command exits with 143."""
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds() -> Iterator[None]:
+    """While a verb runs, SIGTERM raises :class:`Terminated` (default Python dies without cleaning up)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``nearlight`` command; returns the exit status."""
     args = build_parser().parse_args(argv)
     try:
-        return int(args.run(args) or 0)
+        with _sigterm_unwinds():
+            return int(args.run(args) or 0)
     except UserError as exc:
         print(f"nearlight: error: {exc}", file=sys.stderr)
         return UserError.exit_code
     except KeyboardInterrupt:
         print("nearlight: interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print("nearlight: terminated", file=sys.stderr)
+        return 143

@@ -21,7 +21,9 @@ def set_dotted(doc: dict[str, Any], key: str, value: Any, *, where: str) -> None
         with ``where`` (the file or option being applied).
     """
     node = doc
-    parts = key.split(".")
+    parts = str(key).split(".")
+    if not all(p.strip() for p in parts):
+        raise UserError(f"{where}: {key!r}: expected a dotted key of names, e.g. lamp.position")
     for i, part in enumerate(parts[:-1]):
         child = node.setdefault(part, {})
         if not isinstance(child, dict):

@@ -76,8 +76,12 @@ def panel_grid(
     Raises
     ------
     UserError
-        ``path`` cannot be written.
+        ``path`` cannot be written, or holds a file that is not a PNG image
+        (see :func:`nearlight.outputs.check_file_out`).
     """
+    from nearlight.outputs import check_file_out
+
+    path = check_file_out(path, "png")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -100,12 +104,35 @@ def panel_grid(
     if title:
         fig.suptitle(title, fontsize=title_size)
     fig.tight_layout()
+    try:
+        save_png(fig, path)
+    finally:
+        plt.close(fig)
+    return path
+
+
+def save_png(fig: Any, path: str | os.PathLike, *, dpi: int = 100) -> Path:
+    """Save a matplotlib figure as PNG at ``path``, atomically (a temporary sibling renamed into place).
+
+    Raises
+    ------
+    UserError
+        ``path`` cannot be written.
+    """
+    import tempfile
+
     path = Path(path)
+    tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=100)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+        with os.fdopen(fd, "wb") as f:
+            fig.savefig(f, dpi=dpi, format="png")
+        os.replace(tmp, path)
+        tmp = None
     except OSError as exc:
         raise UserError(f"{path}: cannot write the figure ({exc.strerror or exc})") from None
     finally:
-        plt.close(fig)
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
     return path

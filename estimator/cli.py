@@ -50,6 +50,7 @@ def parse_options(pairs: list[str]) -> dict[str, Any]:
 
 def _write_json(doc: dict, path: Path) -> None:
     """Write atomically: a temporary sibling renamed into place."""
+    tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
@@ -57,26 +58,40 @@ def _write_json(doc: dict, path: Path) -> None:
             json.dump(doc, f, indent=2)
             f.write("\n")
         os.replace(tmp, path)
+        tmp = None
     except OSError as exc:
         raise UserError(f"{path}: cannot write the estimate ({exc.strerror or exc})") from None
+    finally:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
 
 
 def run(args: argparse.Namespace) -> int:
     from nearlight.capture import read_capture
     from nearlight.estimator.api import estimate
 
+    from nearlight.outputs import check_file_out
+
     options = parse_options(args.option)
+    # Both output places are checked before any work; the plot is drawn before the
+    # JSON is written, so a failing plot never leaves a lone estimate behind.
+    if args.json:
+        check_file_out(args.json, "estimate", flag="--json")
+    if args.plot:
+        check_file_out(args.plot, "png", flag="--plot")
+    if args.json and args.plot and Path(args.json).resolve() == Path(args.plot).resolve():
+        raise UserError(f"--json {args.json}: the same file as --plot")
     capture = read_capture(args.capture)
     est = estimate(capture, method=args.method, **options)
     pos = ", ".join(f"{v:.4f}" for v in est.lamp_position)
     ks = ", ".join(f"{v:.4g}" for v in est.ks)
     print(f"{est.method}: lamp ({pos}) m  ks ({ks})  sigma {est.sigma:.4f} rad  "
           f"[{sum(est.timings.values()):.2f} s]")
-    if args.json:
-        _write_json(est.to_dict(), Path(args.json))
     if args.plot:
         from nearlight.estimator.plot import plot_estimate
 
         plot_estimate(capture, est, args.plot)
+    if args.json:
+        _write_json(est.to_dict(), Path(args.json))
     sys.stdout.flush()
     return 0

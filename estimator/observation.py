@@ -21,6 +21,14 @@ from nearlight.reflectance import normalize
 
 #: Fewest specular pixels the regressions and fits accept.
 MIN_SPECULAR_PIXELS = 10
+#: How far (median over surface pixels) the rays from the camera through ``P``
+#: may miss their pixels before a capture is refused as inconsistent with its
+#: camera: this many pixels, or this fraction of the image width when larger.
+#: Range noise moves ``P`` along its ray (0 px); a camera position 1 cm off at
+#: 0.6 m moves rays by about 1°, 15 px of a 640-px, 40° image (passes); ``P``
+#: shifted by metres, or a surface behind the camera, misses by far more.
+RAY_TOLERANCE_PX = 3.0
+RAY_TOLERANCE_FRACTION = 0.05
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,6 +93,118 @@ def _check_shapes(capture: Capture) -> None:
             )
 
 
+def pixel_ray_error(capture: Capture) -> tuple[np.ndarray, np.ndarray]:
+    """How far the ray from the camera through each pixel's ``P`` misses that pixel.
+
+    With ``camera.to_world`` and ``fov_x_deg`` (the generator's convention:
+    the camera looks along its local +z, image columns run along local −x,
+    rows along local −y) the rays are projected into the image; without them
+    the best pinhole camera at ``camera.position`` is fitted to the rays
+    (direct linear transform, rays ∝ M·[column, row, 1]) and the residual is
+    measured with that camera's pixel size.
+
+    Returns
+    -------
+    error_px : ndarray, shape (H, W)
+        Distance in pixels between each pixel and where its ray lands; NaN off
+        the surface.
+    behind : ndarray, shape (H, W), bool
+        Surface pixels whose ``P`` is behind the camera (only known with ``to_world``).
+    """
+    H, W = capture.height, capture.width
+    C = np.asarray(capture.camera.position, dtype=float)
+    P = np.asarray(capture.P, dtype=float)
+    finite = np.all(np.isfinite(P), axis=-1)
+    d = np.where(finite[..., None], P - C, np.nan)
+    jj, ii = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+    error = np.full((H, W), np.nan)
+    behind = np.zeros((H, W), bool)
+    cam = capture.camera
+    if cam.to_world is not None and cam.fov_x_deg is not None:
+        R = np.asarray(cam.to_world, dtype=float)[:3, :3]
+        local = d @ R  # R^T d, row-wise
+        z = local[..., 2]
+        behind = finite & ~(z > 0)
+        t = np.tan(np.radians(cam.fov_x_deg) / 2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            col = (1 - local[..., 0] / z / t) * W / 2
+            row = (1 - local[..., 1] / z / (t * H / W)) * H / 2
+        error = np.where(finite & ~behind, np.hypot(col - jj, row - ii), np.nan)
+        return error, behind
+    idx = np.flatnonzero(finite)
+    if idx.size < 8:
+        return error, behind
+    sub = idx[np.linspace(0, idx.size - 1, min(idx.size, 4000)).astype(int)]
+    dirs = d.reshape(-1, 3)[sub]
+    dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    pix = np.stack([jj.ravel()[sub], ii.ravel()[sub], np.ones(sub.size)], axis=1)
+    pix[:, :2] -= [W / 2, H / 2]
+    scale = max(W, H)
+    pix[:, :2] /= scale
+    # d x (M p) = 0, two independent rows per pixel, M flattened row-major.
+    A = np.zeros((2 * sub.size, 9))
+    A[0::2, 3:6] = -dirs[:, 2:3] * pix
+    A[0::2, 6:9] = dirs[:, 1:2] * pix
+    A[1::2, 0:3] = dirs[:, 2:3] * pix
+    A[1::2, 6:9] = -dirs[:, 0:1] * pix
+    M = np.linalg.svd(A, full_matrices=False)[2][-1].reshape(3, 3)
+    allpix = np.stack([(jj - W / 2) / scale, (ii - H / 2) / scale, np.ones((H, W))], axis=-1)
+    ray = allpix @ M.T
+    ray /= np.linalg.norm(ray, axis=-1, keepdims=True)
+    unit = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    sign = np.sign(np.nansum(np.sum(ray * unit, axis=-1)))
+    angle = np.arccos(np.clip(sign * np.sum(ray * unit, axis=-1), -1.0, 1.0))
+    i0, j0 = H // 2, W // 2
+    step = np.stack([(np.array([j0 + 1.5, j0 + 0.5]) - W / 2) / scale, (np.array([i0 + 0.5] * 2) - H / 2) / scale,
+                     np.ones(2)], axis=-1) @ M.T  # fmt: skip
+    step /= np.linalg.norm(step, axis=-1, keepdims=True)
+    pixel_angle = float(np.arccos(np.clip(step[0] @ step[1], -1.0, 1.0)))
+    if pixel_angle > 0:
+        error = np.where(finite, angle / pixel_angle, np.nan)
+    return error, behind
+
+
+def check_rays(capture: Capture) -> None:
+    """Raise :class:`UserError` when ``P`` is inconsistent with the camera.
+
+    Refused: more than 1 % of the surface behind the camera, or rays from the
+    camera through ``P`` that miss their pixels by more than
+    :data:`RAY_TOLERANCE_PX` pixels or :data:`RAY_TOLERANCE_FRACTION` of the
+    image width (whichever is larger), median over the surface.
+    """
+    error, behind = pixel_ray_error(capture)
+    surface = capture.surface_mask
+    n = int(surface.sum())
+    if n and behind.sum() > 0.01 * n:
+        i, j = np.argwhere(behind)[0]
+        raise UserError(
+            f"{capture.name}: channel P: {100 * behind.sum() / n:.0f}% of the surface is behind the camera "
+            f"(first at row {i}, column {j}); P does not match camera.position/to_world"
+        )
+    tol = max(RAY_TOLERANCE_PX, RAY_TOLERANCE_FRACTION * capture.width)
+    med = float(np.nanmedian(error)) if np.isfinite(error).any() else 0.0
+    if med > tol:
+        raise UserError(
+            f"{capture.name}: channel P: rays from camera.position through P miss their pixels by {med:.1f} px "
+            f"(median; at most {tol:.1f} accepted); P does not match the camera"
+        )
+
+
+def _check_signal(name: str, channel: str, img: np.ndarray, surface: np.ndarray) -> None:
+    """Refuse radiance with no signal at the surface: all <= 0, mostly negative, or constant."""
+    vals = img[surface]
+    if vals.size == 0:
+        return
+    hi, lo = float(vals.max()), float(vals.min())
+    if hi <= 0:
+        raise UserError(f"{name}: channel {channel}: no signal: no surface pixel above 0 (all-zero or negative radiance)")
+    if -lo > hi:
+        raise UserError(
+            f"{name}: channel {channel}: mostly negative radiance (min {lo:.4g}, max {hi:.4g}); "
+            "radiance cannot be negative beyond noise"
+        )
+
+
 def surface_geometry(capture: Capture) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``P, N, V, cos_r, surface`` of a capture (normals from ``P`` when ``N`` is absent)."""
     _check_shapes(capture)
@@ -104,19 +224,37 @@ def surface_geometry(capture: Capture) -> tuple[np.ndarray, np.ndarray, np.ndarr
 def specular_image(capture: Capture, *, separation: str = "fit") -> np.ndarray:
     """The capture's specular image ``[H, W, 3]``: given, or separated from the stack."""
     _check_shapes(capture)
+    surface = capture.surface_mask
     if capture.specular is not None:
         spec, channel = np.asarray(capture.specular, dtype=float), "specular"
     elif capture.stack is not None:
+        stack = np.asarray(capture.stack)
+        _check_finite(capture.name, "pol<k>", stack.max(axis=0) + stack.min(axis=0), surface)
+        if stack.size:
+            k = int(np.argmin(stack[:, surface].min(axis=(1, 2)))) if surface.any() else 0
+            _check_signal(capture.name, f"pol{k}", stack.transpose(1, 2, 0, 3), surface)
         spec = separate(capture.stack, capture.analyzer_angles_deg, method=separation)
         spec, channel = spec[0], "pol<k>"
+        if surface.any() and np.all(np.isfinite(spec[surface])):
+            top = float(np.abs(stack[:, surface]).max())
+            if float(np.abs(spec[surface]).max()) <= 1e-6 * top:
+                raise UserError(
+                    f"{capture.name}: channels pol<k>: no polarization signal: the analyzer images do not change "
+                    "with the angle (specular = Imax - Imin = 0 everywhere)"
+                )
     else:
         raise UserError(f"{capture.name}: no image: expected pol<k>.R/G/B channels or specular.R/G/B")
-    surface = capture.surface_mask
-    bad = surface & ~np.all(np.isfinite(spec), axis=-1)
+    _check_finite(capture.name, channel, spec, surface)
+    if capture.specular is not None:
+        _check_signal(capture.name, "specular", spec, surface)
+    return spec
+
+
+def _check_finite(name: str, channel: str, img: np.ndarray, surface: np.ndarray) -> None:
+    bad = surface & ~np.all(np.isfinite(img), axis=-1)
     if bad.any():
         i, j = np.argwhere(bad)[0]
-        raise UserError(f"{capture.name}: channel {channel}: NaN or Inf at surface pixel (row {i}, column {j})")
-    return spec
+        raise UserError(f"{name}: channel {channel}: NaN or Inf at surface pixel (row {i}, column {j})")
 
 
 def _spikes(lum: np.ndarray, surface: np.ndarray) -> np.ndarray:
@@ -159,14 +297,19 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = 0.0
         the threshold, or a peak on the image border.
     """
     P, N, V, cos_r, surface = surface_geometry(capture)
+    check_rays(capture)
     spec = specular_image(capture, separation=separation)
     spec = np.where(surface[..., None], spec, 0.0)
     lum = spec.mean(axis=-1)
+    if surface.any() and np.ptp(lum[surface]) <= 1e-6 * np.abs(lum[surface]).max() and lum[surface].max() > 0:
+        raise UserError(
+            f"{capture.name}: specular: constant over the surface ({lum[surface].max():.4g}): no highlight, no signal"
+        )
     usable = surface & ~_spikes(lum, surface)
     peak = _peak_pixel(lum, usable)
     peak_value = lum[peak]
     if not surface.any() or not peak_value > 0:
-        raise UserError(f"{capture.name}: specular: no specular pixel on the surface (all specular radiance <= 0)")
+        raise UserError(f"{capture.name}: specular: no signal: no specular pixel on the surface above 0")
     mask = usable & np.all(spec > 0, axis=-1) & (lum >= threshold * peak_value)
     if mask.sum() < MIN_SPECULAR_PIXELS:
         raise UserError(

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 
 from nearlight.capture import Capture
-from nearlight.errors import UserError
 from nearlight.estimator.observation import specular_image
 from nearlight.estimator.resynth import render_specular
 from nearlight.estimator.result import Estimate
-from nearlight.figures import tonemap
+from nearlight.figures import save_png, tonemap
+from nearlight.outputs import check_file_out
 
 
 def plot_estimate(capture: Capture, estimate: Estimate, path: str | os.PathLike) -> Path:
@@ -24,7 +24,7 @@ def plot_estimate(capture: Capture, estimate: Estimate, path: str | os.PathLike)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    path = Path(path)
+    path = check_file_out(path, "png", flag="--plot")
     observed = specular_image(capture)
     observed = np.where(capture.surface_mask[..., None], observed, 0.0)
     synth = render_specular(capture, estimate)
@@ -50,9 +50,4 @@ def plot_estimate(capture: Capture, estimate: Estimate, path: str | os.PathLike)
         ax.imshow(tonemap(img, white=white))
         ax.set_title(title)
         ax.set_axis_off()
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=100)
-    except OSError as exc:
-        raise UserError(f"{path}: cannot write the plot ({exc.strerror or exc})") from None
-    return path
+    return save_png(fig, path)

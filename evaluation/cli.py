@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
+from pathlib import Path
+from typing import Any
 
 from nearlight.errors import UserError
 
@@ -59,7 +62,13 @@ def _sweep(args: argparse.Namespace) -> int:
 
     if args.workers < 1:
         raise UserError(f"--workers: expected a positive integer, got {args.workers}")
+    if args.scheduler is not None:
+        check_scheduler(args.scheduler)
+    from nearlight.outputs import check_folder
+
+    check_folder(args.out, what="results folder")
     sweep = load_sweep(args.sweep)
+    _check_resumable(Path(args.out), sweep)
     where = f"Dask scheduler {args.scheduler}" if args.scheduler else f"{args.workers} local worker(s)"
     print(
         f"sweep {sweep.name}: {len(sweep.tasks)} tasks, {len(sweep.render_keys)} physical configurations, "
@@ -69,8 +78,8 @@ def _sweep(args: argparse.Namespace) -> int:
     if args.scheduler:
         try:
             s = run_sweep(sweep, args.out, scheduler=args.scheduler, progress=not args.quiet)
-        except OSError as exc:
-            raise UserError(f"--scheduler {args.scheduler}: cannot connect ({exc})") from None
+        except (OSError, ValueError) as exc:
+            raise UserError(f"--scheduler {args.scheduler}: cannot connect ({' '.join(str(exc).split())})") from None
     else:
         s = run_sweep(sweep, args.out, workers=args.workers, progress=not args.quiet)
     print(
@@ -80,6 +89,31 @@ def _sweep(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return 0 if s.complete else 1
+
+
+def _check_resumable(out: Path, sweep: Any) -> None:
+    """Before anything is printed or run: a results folder must hold this sweep (or none)."""
+    from nearlight.evaluation.store import MANIFEST, read_manifest
+
+    if (out / MANIFEST).exists():
+        old = read_manifest(out)
+        if old["sweep_hash"] != sweep.sweep_hash:
+            raise UserError(
+                f"{out}: holds results of another sweep ({old['name']!r}, hash {old['sweep_hash']}); "
+                "choose another --out or remove it"
+            )
+
+
+#: A Dask scheduler address: ``[protocol://]host:port``.
+_ADDRESS = re.compile(r"^(?:(?:tcp|tls|ucx|ws|wss)://)?(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9](?:[A-Za-z0-9.-]*[A-Za-z0-9])?):(\d{1,5})$")
+
+
+def check_scheduler(address: str) -> str:
+    """Raise :class:`UserError` unless ``address`` reads as a Dask scheduler address ``tcp://HOST:PORT``."""
+    m = _ADDRESS.match(address)
+    if not m or not 0 < int(m.group(1)) < 65536:
+        raise UserError(f"--scheduler {address!r}: expected a scheduler address tcp://HOST:PORT (port 1-65535)")
+    return address
 
 
 def _report(args: argparse.Namespace) -> int:

@@ -49,7 +49,7 @@ import numpy as np
 import pandas as pd
 
 from nearlight.errors import UserError
-from nearlight.evaluation.store import MANIFEST, read_environments, read_results
+from nearlight.evaluation.store import atomic_write, read_environments, read_manifest, read_results
 from nearlight.evaluation.tasks import INFO_COLUMNS, METRICS
 
 #: Metrics compared (``runtime_s`` only on request; ``specular_rmse`` is in radiance units whose scale
@@ -277,13 +277,6 @@ def compare_frames(
     return checks
 
 
-def _manifest(folder: Path) -> dict[str, Any]:
-    try:
-        return json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-
-
 def compare_dirs(
     new_dir: str | os.PathLike, base_dir: str | os.PathLike, *, json_out: str | os.PathLike | None = None,
     **options: Any,
@@ -308,7 +301,7 @@ def compare_dirs(
     new_dir, base_dir = Path(new_dir), Path(base_dir)
     new, new_complete = read_results(new_dir)
     base, _ = read_results(base_dir)
-    mn, mb = _manifest(new_dir), _manifest(base_dir)
+    mn, mb = read_manifest(new_dir), read_manifest(base_dir)
     axes = mb.get("axes")
     checks = compare_frames(new, base, axes=axes, **options)
 
@@ -351,8 +344,6 @@ def compare_dirs(
 
 
 def _write_json(path: Path, doc: Any) -> None:
-    from nearlight.evaluation.store import atomic_write
-
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(doc, indent=2) + "\n"))

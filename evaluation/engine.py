@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from nearlight.evaluation.store import ResultStore
+from nearlight.evaluation.store import MANIFEST, ResultStore, read_manifest, set_aside_damaged_parts
 from nearlight.evaluation.sweep import Sweep, Task
 from nearlight.evaluation.tasks import run_task
 
@@ -116,15 +116,52 @@ class _Inline:
     def as_completed(self, futures: list) -> Iterator:
         return iter(futures)
 
+    def abort(self) -> None:
+        pass
+
     def close(self) -> None:
         pass
+
+
+def _exit_with_parent(parent: int) -> None:
+    """Worker initializer: end this worker when the sweep process that started it is gone.
+
+    A killed parent (even SIGKILL, which no handler sees) must not leave
+    orphaned workers computing rows nobody will write. Linux's parent-death
+    signal covers most cases; a thread that checks the parent id twice a
+    second covers the rest (and other systems).
+    """
+    import os
+    import signal
+    import threading
+
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() != parent:
+        os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(0.5)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="nearlight-parent-watch", daemon=True).start()
 
 
 class _Local:
     """Local worker processes (spawned: Mitsuba and Dr.Jit threads do not survive fork)."""
 
     def __init__(self, workers: int):
-        self.pool = cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+        import os
+
+        self.pool = cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                           initializer=_exit_with_parent, initargs=(os.getpid(),))  # fmt: skip
+        self.aborted = False
 
     def submit(self, fn: Callable, *args: Any, **kw: Any) -> cf.Future:
         return self.pool.submit(fn, *args, **kw)
@@ -132,8 +169,20 @@ class _Local:
     def as_completed(self, futures: list) -> Iterator:
         return cf.as_completed(futures)
 
+    def abort(self) -> None:
+        """Stop now (interrupted): end the workers instead of waiting for their tasks."""
+        self.aborted = True
+        processes = list(getattr(self.pool, "_processes", {}).values())
+        self.pool.shutdown(wait=False, cancel_futures=True)
+        for p in processes:
+            if p.is_alive():
+                p.terminate()
+        for p in processes:
+            p.join(timeout=5)
+
     def close(self) -> None:
-        self.pool.shutdown(wait=True, cancel_futures=True)
+        if not self.aborted:
+            self.pool.shutdown(wait=True, cancel_futures=True)
 
 
 class _Dask:
@@ -152,6 +201,10 @@ class _Dask:
         from distributed import as_completed
 
         return as_completed(futures)
+
+    def abort(self) -> None:
+        self.close()
+        self.own = False
 
     def close(self) -> None:
         if self.own:
@@ -197,7 +250,11 @@ def run_sweep(
     from tqdm import tqdm
 
     t_start = time.perf_counter()
+    if (Path(out) / MANIFEST).exists():
+        read_manifest(out)  # a damaged sweep.json is a one-line error naming it, before anything runs
     store = ResultStore(out, name=sweep.name, sweep_hash=sweep.sweep_hash, n_tasks=len(sweep.tasks), axes=list(sweep.axes))
+    for moved in set_aside_damaged_parts(out):
+        print(f"nearlight: note: a damaged result part was moved to {moved}; its task runs again", file=sys.stderr)
     done = store.done_ids()
     todo = [t for t in sweep.tasks if t.task_id not in done]
     version = code_version()
@@ -240,6 +297,9 @@ def run_sweep(
             failed += row["status"] != "ok"
             bar.update()
         bar.close()
+    except BaseException:
+        executor.abort()
+        raise
     finally:
         executor.close()
     complete = store.consolidate() is not None

@@ -20,10 +20,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from nearlight.dotted import get_dotted, set_dotted
 from nearlight.errors import UserError
+from nearlight.yamlfile import load_yaml_file
 
 
 def convert_material(material: dict, model: str) -> dict:
@@ -69,10 +69,7 @@ class Renderer:
         path = Path(scene) if Path(scene).is_absolute() else base_dir / scene
         if not path.is_file():
             raise UserError(f"{where}: no such scene file {str(path)!r}")
-        try:
-            doc = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as exc:
-            raise UserError(f"{path}: not valid YAML: {getattr(exc, 'problem', exc)}") from None
+        doc = load_yaml_file(path, what="scene file")
         if not isinstance(doc, dict):
             raise UserError(f"{path}: expected a mapping of scene sections")
         return doc
@@ -188,13 +185,53 @@ class AnalyticRenderer(Renderer):
         if scene.get("shape", "board") not in ("board", "sphere"):
             raise UserError(f"{where}: shape: expected 'board' or 'sphere', got {scene['shape']!r}")
         bsdf = scene.get("bsdf")
+        if bsdf is not None and not isinstance(bsdf, dict):
+            raise UserError(f"{where}: bsdf: expected a mapping with a model key, got {bsdf!r}")
         if bsdf is not None and bsdf.get("model") not in ("torrance_sparrow", "ward"):
             raise UserError(f"{where}: bsdf.model: expected 'torrance_sparrow' or 'ward', got {bsdf.get('model')!r}")
+        for key, value in scene.items():
+            kind = self.KINDS.get(key)
+            if kind is not None and not _analytic_value_ok(kind, value):
+                raise UserError(f"{where}: {key}: expected {self.KIND_TEXT[kind]}, got {value!r}")
+
+    #: What each ``analytic_capture`` argument must be (checked before any task runs).
+    KINDS = {"width": "size", "height": "size", "fov_x_deg": "fov", "camera_position": "vec3", "look_at": "vec3|none",
+             "up": "vec3", "lamp_position": "vec3", "lamp_intensity": "rgb|number", "kd": "rgb",
+             "analyzer_angles_deg": "angles|none", "phase_deg": "number|list", "board_size": "positive",
+             "board_centre": "vec3", "board_normal": "vec3", "sphere_centre": "vec3", "sphere_radius": "positive",
+             "with_normals": "bool", "shape": "str"}  # fmt: skip
+    KIND_TEXT = {"size": "a positive integer (at most 16384)", "fov": "a number of degrees in (0, 180)",
+                 "vec3": "3 numbers", "vec3|none": "3 numbers or null", "rgb|number": "a number >= 0 or 3 of them",
+                 "rgb": "3 numbers >= 0", "angles|none": "a list of at least 3 angles in degrees, or null",
+                 "number|list": "a number or a list of numbers", "positive": "a positive number",
+                 "bool": "true or false", "str": "a name"}  # fmt: skip
 
     def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
         from nearlight.synthetic import analytic_capture
 
         return analytic_capture(**copy.deepcopy(scene))
+
+
+def _number(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _analytic_value_ok(kind: str, v: Any) -> bool:
+    """Whether ``v`` is a value of ``kind`` (see ``AnalyticRenderer.KINDS``)."""
+    numbers = isinstance(v, (list, tuple)) and all(_number(x) for x in v)
+    return {
+        "size": lambda: isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 16384,
+        "fov": lambda: _number(v) and 0 < v < 180,
+        "vec3": lambda: numbers and len(v) == 3,
+        "vec3|none": lambda: v is None or (numbers and len(v) == 3),
+        "rgb|number": lambda: (_number(v) and v >= 0) or (numbers and len(v) == 3 and min(v) >= 0),
+        "rgb": lambda: numbers and len(v) == 3 and min(v) >= 0,
+        "angles|none": lambda: v is None or (numbers and len(v) >= 3),
+        "number|list": lambda: _number(v) or (numbers and len(v) > 0),
+        "positive": lambda: _number(v) and v > 0,
+        "bool": lambda: isinstance(v, bool),
+        "str": lambda: isinstance(v, str),
+    }[kind]()
 
 
 class MitsubaRenderer(Renderer):

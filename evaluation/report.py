@@ -13,15 +13,17 @@ Writes into ``DIR/report/``:
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from nearlight.evaluation.store import MANIFEST, read_results
+from nearlight.errors import UserError
+from nearlight.evaluation.store import MANIFEST, read_manifest, read_results
 from nearlight.evaluation.tasks import METRICS
+from nearlight.figures import save_png
+from nearlight.outputs import check_files_in, make_folder
 
 #: Metrics shown in the Markdown tables and plots (all are in the CSV files).
 HEADLINE = ("lamp_position_error_pct", "direction_error_deg", "distance_error_m", "sigma_rel_error", "ks_rel_error",
@@ -117,31 +119,57 @@ def plot_axis(df: pd.DataFrame, axis: str, path: Path) -> None:
         ax.grid(alpha=0.3)
     axs[0].legend(fontsize=8)
     fig.suptitle(f"error vs {axis}: median (line), 90th percentile (band)")
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        save_png(fig, path, dpi=110)
+    finally:
+        plt.close(fig)
+
+
+def report_files(varied: list[str]) -> dict[str, str]:
+    """``{file name: kind}`` of every file a report writes (kinds: :data:`nearlight.outputs.KINDS`)."""
+    files = {"summary.md": "report-md", "overall.csv": "report-csv", "by_axis.csv": "report-csv",
+             "crlb.csv": "report-csv"}  # fmt: skip
+    files.update({_png_name(a): "png" for a in varied})
+    return files
+
+
+def _png_name(axis: str) -> str:
+    return f"error_vs_{axis.replace('.', '_')}.png"
 
 
 def write_report(results_dir: str | os.PathLike, *, out: str | os.PathLike | None = None) -> Path:
-    """Write the tables and plots of a sweep folder; returns the report folder."""
+    """Write the tables and plots of a sweep folder; returns the report folder.
+
+    The report folder (default ``DIR/report``) and every file the report
+    writes there (:func:`report_files`) are checked before anything is
+    written: an existing file is replaced only when it is of the kind the
+    report writes; other files in the folder are left alone.
+
+    Raises
+    ------
+    UserError
+        No results, a damaged results file, or a report place that cannot be written.
+    """
     results_dir = Path(results_dir)
     df, complete = read_results(results_dir)
-    folder = Path(out) if out is not None else results_dir / "report"
-    folder.mkdir(parents=True, exist_ok=True)
     manifest = results_dir / MANIFEST
-    info = json.loads(manifest.read_text()) if manifest.is_file() else {}
-    axes = [a for a in info.get("axes", []) if a in df.columns]
+    info = read_manifest(results_dir) if manifest.exists() else {}
+    axes = [a for a in info.get("axes", []) if isinstance(a, str) and a in df.columns]
     varied = [a for a in axes if df[a].nunique() > 1]
+    folder = Path(out) if out is not None else results_dir / "report"
+    check_files_in(folder, report_files(varied))
+    make_folder(folder, what="report folder")
 
     overall = stats(df, ["method"])
-    overall.to_csv(folder / "overall.csv", index=False)
+    _write_text(folder / "overall.csv", overall.to_csv(index=False))
     frames = [stats(df, [a, "method"]).rename(columns={a: "value"}).assign(axis=a) for a in varied]
     by_axis = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
     if not by_axis.empty:
         by_axis["value"] = by_axis["value"].astype(str)
         by_axis = by_axis[["axis", "value", "method", "metric", "n", "mean", "median", "p90"]]
-    by_axis.to_csv(folder / "by_axis.csv", index=False)
+    _write_text(folder / "by_axis.csv", by_axis.to_csv(index=False))
     bound = crlb_table(df, axes)
-    bound.to_csv(folder / "crlb.csv", index=False)
+    _write_text(folder / "crlb.csv", bound.to_csv(index=False))
 
     counts = df.groupby("method", sort=False)["status"].agg(tasks="size", failed=lambda s: int((s != "ok").sum()))
     md = [f"# Sweep report: {info.get('name', results_dir.name)}", ""]
@@ -154,7 +182,7 @@ def write_report(results_dir: str | os.PathLike, *, out: str | os.PathLike | Non
     for a in varied:
         st = stats(df, [a, "method"])
         md += [f"## By {a}", "", _md(_wide(st, [a, "method"])), ""]
-        png = f"error_vs_{a.replace('.', '_')}.png"
+        png = _png_name(a)
         plot_axis(df, a, folder / png)
         md += [f"![error vs {a}]({png})", ""]
     if not bound.empty:
@@ -165,5 +193,12 @@ def write_report(results_dir: str | os.PathLike, *, out: str | os.PathLike | Non
     failed = df[df["status"] != "ok"]
     if len(failed):
         md += ["## Failed tasks", "", _md(failed[["task_index", "method", "error"]].head(50)), ""]
-    (folder / "summary.md").write_text("\n".join(md))
+    _write_text(folder / "summary.md", "\n".join(md))
     return folder
+
+
+def _write_text(path: Path, text: str) -> None:
+    try:
+        path.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise UserError(f"{path}: cannot write the report ({exc.strerror or exc})") from None

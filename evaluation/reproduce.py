@@ -37,7 +37,7 @@ import numpy as np
 from nearlight import __version__
 from nearlight.capture import Capture
 from nearlight.errors import UserError
-from nearlight.figures import panel_grid, tonemap
+from nearlight.figures import panel_grid, save_png, tonemap
 from nearlight.jsonable import jsonable
 
 #: The paper's own numbers, quoted with their section (never computed here).
@@ -317,9 +317,10 @@ def _distance_plot(rows: list[dict[str, Any]], path: Path) -> Path:
     axes[0].legend()
     fig.suptitle("Near vs. distant: the paper's motivation (Fig. 1), measured")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    try:
+        save_png(fig, path)
+    finally:
+        plt.close(fig)
     return path
 
 
@@ -331,14 +332,27 @@ EXPERIMENTS: dict[str, Callable[[_Run], dict[str, Any]]] = {
 }
 
 
+#: Every file ``reproduce`` writes into its folder, with its kind (see
+#: :mod:`nearlight.outputs`): an existing file there is replaced only when it
+#: is of that kind; other files in the folder are left alone.
+REPORT_FILES: dict[str, str] = {
+    "paper_reproduction.json": "reproduction-json",
+    "paper_reproduction.md": "reproduction-md",
+    **{f"figures/{name}": "png" for name in ("fig3_board.png", "bookend_separation.png", "bookend_synthesis.png",
+                                             "curved_separation.png", "curved_synthesis.png", "near_vs_distant.png")},
+}  # fmt: skip
+
+
 def reproduce(out: str | Path, *, quick: bool = False, progress: bool = True) -> Path:
     """Run every experiment and write the report.
 
     Parameters
     ----------
     out : path-like
-        Report folder (created; an earlier report there is replaced, renders
-        are re-used from its ``.render-cache``).
+        Report folder (created). An earlier report there is replaced, file by
+        file (:data:`REPORT_FILES`), only where each file is of the kind
+        ``reproduce`` writes; anything else there is refused before any work
+        and left untouched. Renders are re-used from its ``.render-cache``.
     quick : bool, optional
         Small images and a 4-angle camera (:data:`QUICK`), for tests.
     progress : bool, optional
@@ -349,11 +363,14 @@ def reproduce(out: str | Path, *, quick: bool = False, progress: bool = True) ->
     Path
         ``out / "paper_reproduction.md"``.
     """
+    from nearlight.outputs import check_files_in, check_folder, make_folder
+
     out = Path(out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UserError(f"{out}: cannot write there ({exc.strerror or exc})") from None
+    check_folder(out, what="report folder")
+    check_folder(out / "figures", what="figures folder")
+    check_folder(out / ".render-cache", what="render cache folder")
+    check_files_in(out, REPORT_FILES)
+    make_folder(out, what="report folder")
     profile = QUICK if quick else FULL
     run = _Run(out, profile, progress)
     start = time.perf_counter()

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -69,7 +70,7 @@ class ResultStore:
         manifest = self.out / MANIFEST
         doc = {"format": "nearlight-sweep/1", "name": name, "sweep_hash": sweep_hash, "tasks": n_tasks, "axes": list(axes)}
         if manifest.is_file():
-            old = json.loads(manifest.read_text())
+            old = read_manifest(self.out)
             if old.get("sweep_hash") != sweep_hash:
                 raise UserError(
                     f"{self.out}: holds results of another sweep ({old.get('name')!r}, hash {old.get('sweep_hash')}); "
@@ -127,22 +128,128 @@ def read_environments(out: str | os.PathLike) -> list[dict[str, Any]]:
     path = Path(out) / ENVIRONMENT
     if not path.is_file():
         return []
+    fix = "move it aside: the next `nearlight sweep` into this folder records its environment again"
     try:
-        envs = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UserError(f"{path}: damaged ({exc}); delete it, the next run writes it again") from None
+        envs = json.loads(path.read_bytes().decode("utf-8"))
+    except ValueError as exc:
+        raise _damaged(path, f"not valid JSON: {' '.join(str(exc).split())[:80]}", fix) from None
     if not (isinstance(envs, list) and all(isinstance(e, dict) for e in envs)):
-        raise UserError(f"{path}: expected a JSON list of environment records; delete it, the next run writes it again")
+        raise _damaged(path, "expected a JSON list of environment records", fix)
     return envs
 
 
+#: Columns every part must have (the rest depend on the sweep's axes).
+REQUIRED_COLUMNS = ("task_id", "task_index", "status")
+
+
+def _damaged(path: Path, why: str, fix: str) -> UserError:
+    return UserError(f"{path}: damaged ({why}); {fix}")
+
+
+def _first_sentence(exc: BaseException) -> str:
+    """The first sentence of an exception's message, without the file name it repeats."""
+    text = " ".join(str(exc).split())
+    text = re.sub(r"^Could not open Parquet input source '[^']*': ", "", text)
+    return re.split(r"(?<=\.) ", text, maxsplit=1)[0][:160].rstrip(".")
+
+
+def _read_frame(path: Path, *, fix: str) -> pd.DataFrame:
+    """One Parquet file with the required columns, or a :class:`UserError` naming it."""
+    import pyarrow
+
+    try:
+        df = pd.read_parquet(path)
+    except (OSError, ValueError, pyarrow.ArrowException) as exc:
+        raise _damaged(path, f"not a readable Parquet file: {_first_sentence(exc)}", fix) from None
+    missing = [c for c in REQUIRED_COLUMNS if c not in df.columns]
+    if missing:
+        raise _damaged(path, f"column {missing[0]} missing", fix)
+    return df
+
+
+def _part_fix(path: Path) -> str:
+    return (f"run the same `nearlight sweep` again: it moves the damaged part to {PARTS}/damaged/ and "
+            f"recomputes task {path.stem}")
+
+
 def read_parts(out: str | os.PathLike) -> pd.DataFrame:
-    """Every part's row, in task order (an empty frame when none)."""
+    """Every part's row, in task order (an empty frame when none).
+
+    Raises
+    ------
+    UserError
+        Naming the first damaged part (unreadable, or without the required columns).
+    """
     parts = sorted((Path(out) / PARTS).glob("*.parquet"))
     if not parts:
         return pd.DataFrame()
-    df = pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)
+    frames = []
+    for p in parts:
+        df = _read_frame(p, fix=_part_fix(p))
+        if len(df) != 1 or str(df["task_id"].iloc[0]) != p.stem:
+            raise _damaged(p, f"expected one row for task {p.stem}, got {len(df)}", _part_fix(p))
+        frames.append(df)
+    df = pd.concat(frames, ignore_index=True)
     return df.sort_values("task_index", kind="stable").reset_index(drop=True)
+
+
+def set_aside_damaged_parts(out: str | os.PathLike) -> list[Path]:
+    """Move every damaged part of a results folder to ``parts/damaged/`` so its task runs again.
+
+    A part is damaged when it is not a readable Parquet file with one row of
+    its task (see :func:`read_parts`). Nothing is deleted: the damaged files
+    are kept for a person to look at, and good parts are never touched.
+
+    Returns
+    -------
+    list of Path
+        Where the damaged parts went.
+    """
+    moved = []
+    folder = Path(out) / PARTS
+    for p in sorted(folder.glob("*.parquet")):
+        try:
+            df = _read_frame(p, fix="")
+            ok = len(df) == 1 and str(df["task_id"].iloc[0]) == p.stem
+        except UserError:
+            ok = False
+        if not ok:
+            (folder / "damaged").mkdir(exist_ok=True)
+            target = folder / "damaged" / p.name
+            n = 1
+            while target.exists():
+                target = folder / "damaged" / f"{p.stem}.{n}.parquet"
+                n += 1
+            os.replace(p, target)
+            moved.append(target)
+    return moved
+
+
+def read_manifest(out: str | os.PathLike) -> dict[str, Any]:
+    """The ``sweep.json`` of a results folder.
+
+    Raises
+    ------
+    UserError
+        It is not a JSON object with ``name``, ``sweep_hash`` and ``tasks``.
+    """
+    path = Path(out) / MANIFEST
+    fix = ("it records which sweep the folder holds: restore it, or move it aside and run the same "
+           "`nearlight sweep` again (finished parts are kept)")  # fmt: skip
+    try:
+        doc = json.loads(path.read_bytes().decode("utf-8"))
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except ValueError as exc:
+        raise _damaged(path, f"not valid JSON: {' '.join(str(exc).split())[:80]}", fix) from None
+    if not isinstance(doc, dict):
+        raise _damaged(path, "expected a JSON object", fix)
+    for key, kind in (("name", str), ("sweep_hash", str), ("tasks", int)):
+        if not isinstance(doc.get(key), kind) or isinstance(doc.get(key), bool):
+            raise _damaged(path, f"{key}: expected {'a string' if kind is str else 'an integer'}", fix)
+    if not isinstance(doc.get("axes", []), list):
+        raise _damaged(path, "axes: expected a list", fix)
+    return doc
 
 
 def read_results(out: str | os.PathLike) -> tuple[pd.DataFrame, bool]:
@@ -153,11 +260,15 @@ def read_results(out: str | os.PathLike) -> tuple[pd.DataFrame, bool]:
     Raises
     ------
     UserError
-        When the folder holds no results.
+        When the folder holds no results, or a results file is damaged (the
+        message names it and says what to do).
     """
     out = Path(out)
+    if not out.is_dir():
+        raise UserError(f"{out}: not a sweep results folder (expected a folder written by `nearlight sweep`)")
     if (out / RESULTS).is_file():
-        return pd.read_parquet(out / RESULTS), True
+        fix = f"remove it and run the same `nearlight sweep` again: it is rebuilt from {PARTS}/"
+        return _read_frame(out / RESULTS, fix=fix), True
     df = read_parts(out)
     if df.empty:
         raise UserError(f"{out}: no sweep results (expected {RESULTS} or {PARTS}/*.parquet from `nearlight sweep`)")

@@ -25,10 +25,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from nearlight.errors import UserError
+from nearlight.yamlfile import load_yaml_file
 from nearlight.dotted import set_dotted
 from nearlight.evaluation.renderers import RENDERERS, Renderer
 
@@ -73,6 +73,8 @@ class _SweepFile(BaseModel):
             raise ValueError("expected a positive count or a list of integers")
         if isinstance(v, list) and (not v or len(set(v)) != len(v)):
             raise ValueError("expected a non-empty list of distinct integers")
+        if isinstance(v, list) and min(v) < 0:
+            raise ValueError(f"expected seeds >= 0 (as capture.seed), got {min(v)}")
         return v
 
 
@@ -185,19 +187,14 @@ def load_sweep(source: str | Path | Mapping[str, Any], *, check_methods: bool = 
         path, base_dir = str(p), p.parent
         if not p.is_file():
             raise UserError(f"{p}: no such sweep file")
-        try:
-            doc = yaml.safe_load(p.read_text())
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            where = f" (line {mark.line + 1})" if mark else ""
-            raise UserError(f"{p}: not valid YAML{where}: {getattr(exc, 'problem', exc)}") from None
+        doc = load_yaml_file(p, what="sweep file")
         if not isinstance(doc, dict):
             raise UserError(f"{p}: expected a mapping of sweep keys (name, scene, axes, seeds, methods)")
     try:
         spec = _SweepFile.model_validate(doc)
     except ValidationError as exc:
         err = exc.errors()[0]
-        raise UserError(f"{_where(path, err['loc'])}: {err['msg']}") from None
+        raise UserError(f"{_where(path, err['loc'])}: {err['msg'].removeprefix('Value error, ')}") from None
 
     renderer = RENDERERS[spec.renderer]()
     base = renderer.load_base(spec.scene, base_dir=base_dir, where=f"{path}: scene")

@@ -28,7 +28,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--cache", metavar="DIR", default=None,
                    help=f"render cache folder (default: $NEARLIGHT_CACHE or {default_cache_dir()})")  # fmt: skip
     p.add_argument("--no-cache", action="store_true", help="do not read or write the render cache")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing capture at --out")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing capture at --out (only a capture: a folder holding exactly "
+                   "capture.json and capture.exr)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=_render)
 
@@ -38,7 +40,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Contact sheet of a capture: analyzer images, specular, diffuse, DoLP and AoLP.",
     )
     s.add_argument("capture", metavar="DIR", help="capture directory")
-    s.add_argument("--out", metavar="PNG", default=None, help="output PNG (default: DIR.png beside DIR)")
+    s.add_argument("--out", metavar="PNG", default=None,
+                   help="output PNG (default: DIR.png beside DIR); an existing file there is replaced only if it is a PNG")
     s.set_defaults(run=_show)
 
 
@@ -47,8 +50,14 @@ def _render(args: argparse.Namespace) -> int:
 
     from nearlight.generator import load_scene, render_capture
 
+    from nearlight.generator.pipeline import check_writable
+    from nearlight.outputs import check_folder
+
+    check_writable(Path(args.out), overwrite=args.overwrite)
     scene = load_scene(args.scene, overrides=args.overrides)
     cache = None if args.no_cache else (args.cache or default_cache_dir())
+    if cache is not None:
+        check_folder(cache, what="render cache folder (--cache)")
     out = render_capture(scene, args.out, cache_dir=cache, progress=not args.quiet, overwrite=args.overwrite)
     print(f"wrote {out}", file=sys.stderr)
     return 0
@@ -59,8 +68,12 @@ def _show(args: argparse.Namespace) -> int:
 
     from nearlight.generator.show import contact_sheet
 
+    from nearlight.outputs import check_file_out
+
     folder = Path(args.capture)
-    out = Path(args.out) if args.out else folder.parent / f"{folder.name.rstrip('/') or 'capture'}.png"
+    named = folder if folder.name not in ("", "..") else folder.resolve()
+    out = Path(args.out) if args.out else named.parent / f"{named.name or 'capture'}.png"
+    check_file_out(out, "png", flag="--out")
     contact_sheet(folder, out)
     print(f"wrote {out}", file=sys.stderr)
     return 0

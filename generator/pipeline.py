@@ -6,9 +6,9 @@ import os
 from pathlib import Path
 
 from nearlight.capture import write_capture
-from nearlight.errors import UserError
+from nearlight.outputs import check_capture_out, check_folder
 from nearlight.generator.noise import add_camera_noise, add_range_noise
-from nearlight.generator.render import render_clean
+from nearlight.generator.render import check_memory, render_clean
 from nearlight.generator.scene import Scene
 
 
@@ -45,6 +45,9 @@ def render_capture(scene: Scene, out_dir: str | os.PathLike, *, cache_dir: str |
     """
     out = Path(out_dir)
     check_writable(out, overwrite=overwrite)
+    check_memory(scene)
+    if cache_dir is not None:
+        check_folder(cache_dir, what="render cache folder")
     capture = render_clean(scene, cache_dir=cache_dir, progress=progress)
     cap = scene.capture
     capture = add_camera_noise(capture, noise=cap.noise, seed=cap.seed)
@@ -53,13 +56,6 @@ def render_capture(scene: Scene, out_dir: str | os.PathLike, *, cache_dir: str |
 
 
 def check_writable(out: Path, *, overwrite: bool) -> None:
-    """Raise :class:`UserError` unless a capture can be created at ``out``."""
-    if out.exists() and not overwrite:
-        raise UserError(f"{out}: already exists (choose another --out or pass --overwrite)")
-    if out.exists() and not out.is_dir():
-        raise UserError(f"{out}: exists and is not a directory")
-    parent = out.parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
-        raise UserError(f"{out}: cannot write there ({parent} is not a writable folder)")
+    """Raise :class:`UserError` unless a capture can be created at ``out`` (see
+    :func:`nearlight.outputs.check_capture_out`: ``--overwrite`` replaces only a capture)."""
+    check_capture_out(out, overwrite=overwrite)

@@ -32,6 +32,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
 from types import ModuleType
@@ -308,6 +309,66 @@ def render_key(scene: Scene) -> str:
     return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:24]
 
 
+#: Memory a render needs, measured (peak resident set of ``nearlight render``,
+#: Mitsuba 3.9.1, 8 analyzer angles: 216 MB at 160x120, 396 MB at 640x480, 936 MB
+#: at 1280x960, i.e. about 600 bytes per pixel above a 200 MB base), with margin:
+#: a base, bytes per pixel, per analyzer angle per pixel, and per pixel again
+#: when every colour channel is rendered separately (``max_depth`` > 2 or a
+#: Mitsuba material).
+MEMORY_BASE = 300e6
+MEMORY_PER_PIXEL = 400.0
+MEMORY_PER_ANGLE_PIXEL = 40.0
+MEMORY_PER_PIXEL_PER_CHANNEL_PASSES = 200.0
+
+
+def memory_needed(scene: Scene) -> float:
+    """Bytes a render of ``scene`` and the capture written from it need at their peak (an estimate)."""
+    pixels = scene.camera.width * scene.camera.height
+    per_pixel = MEMORY_PER_PIXEL + MEMORY_PER_ANGLE_PIXEL * len(scene.capture.analyzer_angles_deg)
+    if isinstance(scene.material, MitsubaMaterial) or scene.capture.max_depth > 2:
+        per_pixel += MEMORY_PER_PIXEL_PER_CHANNEL_PASSES
+    return MEMORY_BASE + pixels * per_pixel
+
+
+def memory_available() -> float | None:
+    """Bytes this process can still use: ``MemAvailable`` and the address-space limit (None when unknown)."""
+    import resource
+
+    avail = None
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                avail = float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    if avail is None:
+        try:
+            avail = float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+        except (ValueError, OSError, AttributeError):
+            avail = None
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft != resource.RLIM_INFINITY:
+        avail = soft if avail is None else min(avail, float(soft))
+    return avail
+
+
+def check_memory(scene: Scene) -> None:
+    """Refuse, before anything starts, a render that will not fit in memory.
+
+    Raises
+    ------
+    UserError
+        Naming ``camera.resolution`` and the memory it needs.
+    """
+    need, avail = memory_needed(scene), memory_available()
+    if avail is not None and need > avail:
+        w, h = scene.camera.width, scene.camera.height
+        raise UserError(
+            f"{scene.source}: camera.resolution: a {w}x{h} render needs about {need / 1e9:.1f} GB of memory, "
+            f"{avail / 1e9:.1f} GB is available; lower camera.resolution"
+        )
+
+
 def render_clean(scene: Scene, *, cache_dir: str | os.PathLike | None = None, progress: bool = True) -> Capture:
     """Render ``scene`` to a noise-free capture.
 
@@ -330,23 +391,44 @@ def render_clean(scene: Scene, *, cache_dir: str | os.PathLike | None = None, pr
     Raises
     ------
     UserError
-        The camera sees no object, or the lamp is inside it.
+        The camera sees no object, the lamp is inside it, the render will not
+        fit in memory (:func:`check_memory`), or Mitsuba cannot load a
+        ``mitsuba`` material.
     """
+    check_memory(scene)
     key = render_key(scene)
     cached = None if cache_dir is None else Path(cache_dir) / f"{key}.npz"
     if cached is not None and cached.is_file():
         try:
             with np.load(cached) as z:
                 arrays = {k: z[k] for k in z.files}
-        except (OSError, ValueError):
+        except (OSError, ValueError, EOFError, KeyError):
             arrays = None  # a damaged cache entry: render again
+        if arrays is not None and not _cache_entry_ok(arrays, scene):
+            arrays = None  # not what this render produces (damaged, or from another version): render again
     else:
         arrays = None
     if arrays is None:
         arrays = _render_arrays(scene, progress=progress)
         if cached is not None:
-            _save_atomic(cached, arrays)
+            try:
+                _save_atomic(cached, arrays)
+            except OSError as exc:  # the render itself is fine: go on without caching it
+                import sys
+
+                print(f"nearlight: note: {cached}: cannot write the render cache ({exc.strerror or exc})",
+                      file=sys.stderr)  # fmt: skip
     return assemble(scene, arrays, key=key)
+
+
+def _cache_entry_ok(arrays: dict[str, np.ndarray], scene: Scene) -> bool:
+    """Whether a cached render has every array :func:`assemble` needs, with this scene's shapes."""
+    hw = (scene.camera.height, scene.camera.width)
+    want = {"P": (*hw, 3), "N": (*hw, 3), "to_world": (4, 4), "stokes_full": (3, *hw, 3)}
+    for part in ("specular", "diffuse"):
+        if f"stokes_{part}" in arrays:
+            want[f"stokes_{part}"] = (3, *hw, 3)
+    return all(k in arrays and arrays[k].shape == shape and arrays[k].dtype.kind == "f" for k, shape in want.items())
 
 
 def _save_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -361,6 +443,67 @@ def _save_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
         raise
 
 
+#: Scratch folders of renders (mesh files for Mitsuba) in the temporary folder:
+#: ``nearlight-render-<pid>-<random>``. They are removed when the render ends,
+#: also on SIGTERM and Ctrl-C; one left by a render killed with SIGKILL is
+#: removed by the next render once its process is gone.
+SCRATCH_PREFIX = "nearlight-render-"
+
+
+def _remove_stale_scratch() -> None:
+    """Remove scratch folders of this user's renders whose process no longer runs."""
+    import shutil
+
+    root = Path(tempfile.gettempdir())
+    try:
+        entries = list(root.glob(f"{SCRATCH_PREFIX}*-*"))
+    except OSError:
+        return
+    for folder in entries:
+        pid = folder.name[len(SCRATCH_PREFIX):].split("-", 1)[0]
+        try:
+            if not pid.isdigit() or folder.is_symlink() or folder.stat().st_uid != os.getuid():
+                continue
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(folder, ignore_errors=True)
+        except OSError:
+            continue
+
+
+_MITSUBA_TAG = re.compile(r"\[[A-Za-z_]+\.(?:cpp|h):\d+\]\s*|(?:At|While loading) dictionary node \"[a-z_.]+\":\s*")
+
+
+def check_mitsuba_bsdf(mi: ModuleType, scene: Scene) -> None:
+    """Load a ``material.model: mitsuba`` BSDF once per colour channel, before any rendering.
+
+    Raises
+    ------
+    UserError
+        Naming the scene file and ``material.bsdf`` with Mitsuba's own reason
+        (unknown plugin, a parameter of the wrong type, an unused parameter...).
+    """
+    if not isinstance(scene.material, MitsubaMaterial):
+        return
+    for channel in range(3):
+        try:
+            mi.load_dict(_per_channel(scene.material.bsdf, channel))
+        except Exception as exc:  # Mitsuba raises RuntimeError/TypeError/ValueError for a bad dict
+            reason = " ".join(_MITSUBA_TAG.sub("", str(exc)).split()) or type(exc).__name__
+            raise UserError(f"{scene.source}: material.bsdf: Mitsuba cannot load it: {reason}") from None
+
+
+def _load_scene(mi: ModuleType, scene: Scene, doc: dict) -> Any:
+    """``mi.load_dict`` of a scene; a mesh file Mitsuba cannot read is a :class:`UserError` naming ``object.file``."""
+    try:
+        return mi.load_dict(doc)
+    except Exception as exc:
+        if scene.object.type != "mesh":
+            raise  # our own scene dict: a bug, keep the traceback
+        reason = " ".join(_MITSUBA_TAG.sub("", str(exc)).split()) or type(exc).__name__
+        raise UserError(f"{scene.source}: object.file: Mitsuba cannot load {scene.object.file}: {reason}") from None
+
+
 def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
     """Run Mitsuba: ``P``, ``N``, ``to_world`` and Stokes ``[3, H, W, 3]`` per part."""
     from tqdm import tqdm
@@ -368,6 +511,7 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
     from nearlight.generator.llvm import mitsuba
 
     mi = mitsuba()
+    check_mitsuba_bsdf(mi, scene)
     analytic = not isinstance(scene.material, MitsubaMaterial)
     linear = analytic and scene.capture.max_depth == 2
     if linear:  # unit renders, scaled per channel below
@@ -375,12 +519,13 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
     else:
         passes = [(p, c) for c in range(3) for p in (("specular", "diffuse", "full") if analytic else ("full",))]
     spp = scene.capture.spp
-    with tempfile.TemporaryDirectory(prefix="nearlight-") as scratch, tqdm(
+    _remove_stale_scratch()
+    with tempfile.TemporaryDirectory(prefix=f"{SCRATCH_PREFIX}{os.getpid()}-") as scratch, tqdm(
         total=len(passes) * spp, desc=f"render ({len(passes)} passes)", unit="spp", disable=not progress, leave=False
     ) as bar:
         stokes: dict[str, np.ndarray] = {}
         for i, (part, channel) in enumerate(passes):
-            mscene = mi.load_dict(scene_dict(mi, scene, part=part, channel=channel, scratch=Path(scratch)))
+            mscene = _load_scene(mi, scene, scene_dict(mi, scene, part=part, channel=channel, scratch=Path(scratch)))
             if i == 0:  # every pass has the same geometry: check it before any rendering
                 P, N = surface(mi, mscene)
                 _check_geometry(mi, scene, mscene, P)

@@ -30,6 +30,7 @@ from pydantic import (
 
 from nearlight.dotted import set_dotted
 from nearlight.errors import UserError
+from nearlight.yamlfile import load_yaml_file
 
 PositiveFloat = Annotated[float, Field(gt=0)]
 Vec3 = tuple[float, float, float]
@@ -340,12 +341,7 @@ def load_scene(
     else:
         path = Path(source)
         name, base = str(path), path.parent
-        try:
-            data = yaml.safe_load(path.read_text())
-        except OSError as exc:
-            raise UserError(f"{path}: cannot read scene file ({exc.strerror or exc})") from None
-        except yaml.YAMLError as exc:
-            raise UserError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+        data = load_yaml_file(path, what="scene file")
         if not isinstance(data, dict):
             raise UserError(f"{path}: expected a mapping with camera, object, material, lamp, capture")
     for key, value in _parse_overrides(overrides, name):

@@ -35,7 +35,7 @@ def _write(tmp_path, doc, name="s.yaml"):
         ({"axes": {"analyzer_angles": [2]}}, "axes.analyzer_angles: 2: expected an integer >= 3"),
         ({"axes": {"noise": ["loud"]}}, "axes.noise: 'loud': expected null or a mapping"),
         ({"axes": {"roughness": [0.1, 0.1]}}, "axes.roughness: duplicate value '0.1'"),
-        ({"seeds": 0}, "seeds: Value error, expected a positive count"),
+        ({"seeds": 0}, "seeds: expected a positive count"),
         ({"methods": []}, "methods: List should have at least 1 item"),
         ({"methods": ["nonsense"]}, "methods[0]: unknown method 'nonsense'"),
         ({"methods": ["full", "full"]}, "methods: duplicate method name 'full'"),

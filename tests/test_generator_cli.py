@@ -73,7 +73,7 @@ def test_unwritable_or_existing_output_is_refused_before_rendering(tmp_path, cap
     blocker = tmp_path / "afile"
     blocker.write_text("")
     assert main(["render", str(SCENES / "ts_board.yaml"), "--out", str(blocker / "cap"), *TINY]) == 2
-    assert "is not a writable folder" in capsys.readouterr().err
+    assert "cannot write there" in capsys.readouterr().err
     (tmp_path / "exists").mkdir()
     assert main(["render", str(SCENES / "ts_board.yaml"), "--out", str(tmp_path / "exists"), *TINY]) == 2
     assert "already exists" in capsys.readouterr().err
