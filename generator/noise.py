@@ -95,7 +95,8 @@ EXACT_POISSON_BELOW = 20.0
 RECORDED = ("stack", "specular", "diffuse")
 
 _U_MAX = 1.0 - 1e-12  # the exact search's F(k) sums carry ~1e-14 rounding: stay clear of 1
-_CHUNK = 1 << 14  # pixels per block of the exact search (stays in cache)
+_CHUNK = 1 << 14  # values per block of the exact search (stays in cache)
+_BLOCK = 1 << 16  # values per block of add_camera_noise
 
 
 def noise_rngs(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
@@ -235,18 +236,21 @@ def add_camera_noise(capture: Capture, *, noise: CameraNoise | Mapping[str, Any]
     noisy = {}
     for name, img in images.items():
         z_shot, z_read = draws.pop(name)
-        lam = np.clip(np.nan_to_num(img, nan=0.0).astype(np.float64), 0.0, None)
-        lam *= noise.full_well / saturation
-        e = shot_electrons(lam, z_shot)
-        del lam, z_shot
-        z_read *= noise.read_noise
-        e += z_read
-        del z_read
-        np.clip(e, 0.0, noise.full_well, out=e)
-        e *= levels / noise.full_well
-        np.rint(e, out=e)
-        e *= saturation / levels
-        noisy[name] = e.astype(np.float32)
+        src, zs, zr = np.asarray(img).reshape(-1), z_shot.reshape(-1), z_read.reshape(-1)
+        out = np.empty(src.shape, np.float32)
+        for a in range(0, src.size, _BLOCK):  # blocks: small temporaries, re-used memory
+            b = min(a + _BLOCK, src.size)
+            lam = np.nan_to_num(src[a:b], nan=0.0).astype(np.float64)
+            np.clip(lam, 0.0, None, out=lam)
+            lam *= noise.full_well / saturation
+            e = shot_electrons(lam, zs[a:b])
+            e += noise.read_noise * zr[a:b]
+            np.clip(e, 0.0, noise.full_well, out=e)
+            e *= levels / noise.full_well
+            np.rint(e, out=e)
+            e *= saturation / levels
+            out[a:b] = e
+        noisy[name] = out.reshape(img.shape)
     record = {**noise.model_dump(mode="json"), "saturation": saturation, "seed": int(seed)}
     return capture.replace(**noisy, meta=_with_noise(capture.meta, "camera", record))
 
