@@ -130,16 +130,17 @@ def run_method(capture: Any, method: str, options: Mapping[str, Any]) -> Any:
 
 
 def _noisy(clean: Any, task: Mapping[str, Any]) -> Any:
-    """The capture the estimator sees: camera noise, then range noise, seeded by the task's seed."""
+    """The capture the estimator sees: camera noise, then range noise, both given the task's seed
+    (the one seed rule of :mod:`nearlight.generator.noise`, as ``nearlight render`` with ``capture.seed``)."""
     capture = clean
     if task["noise"] is not None:
         from nearlight.generator import add_camera_noise
 
-        capture = add_camera_noise(capture, noise=task["noise"], seed=2 * task["seed"])
+        capture = add_camera_noise(capture, noise=task["noise"], seed=task["seed"])
     if task["range_noise"] > 0:
         from nearlight.generator import add_range_noise
 
-        capture = add_range_noise(capture, sigma_m=task["range_noise"], seed=2 * task["seed"] + 1)
+        capture = add_range_noise(capture, sigma_m=task["range_noise"], seed=task["seed"])
     return capture
 
 

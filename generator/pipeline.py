@@ -17,7 +17,7 @@ def render_capture(scene: Scene, out_dir: str | os.PathLike, *, cache_dir: str |
     """Render ``scene`` and write its capture to ``out_dir``.
 
     Camera noise (``capture.noise``) and range noise (``capture.range_noise_m``)
-    are applied with seeds derived from ``capture.seed``. The output folder is
+    are both given ``capture.seed`` (the seed rule of :mod:`nearlight.generator.noise`). The output folder is
     checked before rendering, and written atomically, so a failure never
     leaves a partial capture.
 
@@ -51,7 +51,7 @@ def render_capture(scene: Scene, out_dir: str | os.PathLike, *, cache_dir: str |
     capture = render_clean(scene, cache_dir=cache_dir, progress=progress)
     cap = scene.capture
     capture = add_camera_noise(capture, noise=cap.noise, seed=cap.seed)
-    capture = add_range_noise(capture, sigma_m=cap.range_noise_m, seed=cap.seed + 1)
+    capture = add_range_noise(capture, sigma_m=cap.range_noise_m, seed=cap.seed)
     return write_capture(capture, out, overwrite=overwrite)
 
 
