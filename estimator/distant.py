@@ -254,8 +254,13 @@ class DistantModel:
         return J
 
 
-def _initial(obs: Observation, view: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, float]:
-    """The mirror direction at the peak, and Ks, σ from the regression line there (eq. 16–17)."""
+def _initial(obs: Observation, view: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, float, bool]:
+    """The mirror direction at the peak; Ks, σ from the regression line there (eq. 16–17); one α?
+
+    The last is true when α spreads by less than :data:`PLANE_ALPHA_SPREAD`
+    over the specular pixels (a plane). Then, or when the regression slope is
+    not negative, Ks starts at the peak's and σ at :data:`PLANE_SIGMA`.
+    """
     m = obs.mask
     light0 = mirror_direction(obs.N[obs.peak], view)
     Nm = obs.N[m]
@@ -264,15 +269,16 @@ def _initial(obs: Observation, view: np.ndarray, where: str) -> tuple[np.ndarray
     ok = cos_r > 0
     alpha = np.arccos(np.clip(Nm[ok] @ h0, -1.0, 1.0))
     Y = np.log(obs.specular[m][ok]) + np.log(cos_r[ok])[:, None]
-    if np.ptp(alpha) >= PLANE_ALPHA_SPREAD:
+    one_alpha = bool(np.ptp(alpha) < PLANE_ALPHA_SPREAD)
+    if not one_alpha:
         try:
             ks0, sigma0, _ = log_regression(0.5 * alpha**2, Y, where=where)
-            return light0, ks0, sigma0
+            return light0, ks0, sigma0, False
         except UserError:
-            pass
+            pass  # no falling lobe along α: start as on a plane, but fit l and σ
     # A plane under a distant light and viewer has one α everywhere (the
     # paper's point): start from the peak (α = 0 there) and PLANE_SIGMA.
-    return light0, obs.specular[obs.peak] * float(obs.N[obs.peak] @ view), PLANE_SIGMA
+    return light0, obs.specular[obs.peak] * float(obs.N[obs.peak] @ view), PLANE_SIGMA, one_alpha
 
 
 def distant_estimate(
@@ -317,35 +323,46 @@ def distant_estimate(
     timings = {"observe": time.perf_counter() - clock}
     clock = time.perf_counter()
     view = normalize(obs.camera_position - obs.P[obs.mask].mean(axis=0))
-    light0, ks0, sigma0 = _initial(obs, view, where=f"{capture.name}: specular")
+    light0, ks0, sigma0, one_alpha = _initial(obs, view, where=f"{capture.name}: specular")
     timings["init"] = time.perf_counter() - clock
     clock = time.perf_counter()
 
     use = fit_pixels(obs, max_pixels=int(max_pixels), saturation=saturation)
     N, I = obs.N[use], obs.specular[use]
-    sub = slice(None, None, max(1, len(N) // GRID_PIXELS))
-    axis = normalize(obs.N[obs.mask].mean(axis=0))
-    lights = np.concatenate([light0[None], hemisphere_directions(axis, N_DIRECTIONS)])
-    sigmas = np.concatenate([[sigma0], SIGMA_GRID])
-    with threadpool_limits(limits=1, user_api="blas"):  # small matrices: see robust_fit
-        won = global_stage(N[sub], I[sub], view, lights, sigmas, light0, sigma0)
+    if one_alpha:
+        # A plane: the model is one constant per channel, so l and σ are not
+        # determined at all; they stay at the start and only Ks is fitted.
+        won = {"skipped": "one alpha at every specular pixel (a plane): light direction and sigma kept at the start"}
+        lw, sw, ks_start, free = light0, sigma0, ks0, [2, 3, 4]
+    else:
+        sub = slice(None, None, max(1, len(N) // GRID_PIXELS))
+        axis = normalize(obs.N[obs.mask].mean(axis=0))
+        lights = np.concatenate([light0[None], hemisphere_directions(axis, N_DIRECTIONS)])
+        sigmas = np.concatenate([[sigma0], SIGMA_GRID])
+        with threadpool_limits(limits=1, user_api="blas"):  # small matrices: see robust_fit
+            won = global_stage(N[sub], I[sub], view, lights, sigmas, light0, sigma0)
+        lw, sw, ks_start, free = won["light_direction"], won["sigma"], won["ks"], [0, 1, 2, 3, 4, 5]
     timings["global"] = time.perf_counter() - clock
     clock = time.perf_counter()
 
-    lw, sw = won["light_direction"], won["sigma"]
-    e1, e2 = tangent_basis(lw)
-    weight = ANCHOR_WEIGHT * float(np.max(I))
+    weight = 0.0 if one_alpha else ANCHOR_WEIGHT * float(np.max(I))
+    model = DistantModel(N, I, view, lw, weight=weight, sigma_anchor=sw)
+    ks_start = np.where(np.asarray(ks_start) > 0, ks_start, 1e-12 * float(np.max(I)))
+    full_x = np.concatenate([[0.0, 0.0], ks_start, [sw]])
 
-    model = DistantModel(N, I, view, lw, weight=ANCHOR_WEIGHT * float(np.max(I)), sigma_anchor=sw)
+    def expand(xf: np.ndarray) -> np.ndarray:
+        x = full_x.copy()
+        x[free] = xf
+        return x
 
-    ks_start = np.where(won["ks"] > 0, won["ks"], 1e-12 * float(np.max(I)))
-    x0 = np.concatenate([[0.0, 0.0], ks_start, [sw]])
-    typical = np.concatenate([[0.1, 0.1], np.abs(ks_start) + 1e-12, [sw]])
-    lower = np.concatenate([[-np.inf, -np.inf], np.zeros(3), [1e-4]])
-    upper = np.concatenate([[np.inf, np.inf], np.full(3, np.inf), [np.pi / 2]])
-    fit = robust_fit(model.residuals, x0, typical=typical, lower=lower, upper=upper, loss=loss,
-                     jac=model.jacobian, f_floor=1e-4 * float(np.max(I)))
-    x = fit["x"]
+    typical = np.concatenate([[0.1, 0.1], np.abs(ks_start) + 1e-12, [sw]])[free]
+    lower = np.concatenate([[-np.inf, -np.inf], np.zeros(3), [1e-4]])[free]
+    upper = np.concatenate([[np.inf, np.inf], np.full(3, np.inf), [np.pi / 2]])[free]
+    rows = slice(None) if weight > 0 else slice(0, 3 * len(N))
+    fit = robust_fit(lambda xf: model.residuals(expand(xf))[rows], full_x[free], typical=typical, lower=lower,
+                     upper=upper, loss=loss, jac=lambda xf: model.jacobian(expand(xf))[rows][:, free],
+                     f_floor=1e-4 * float(np.max(I)))
+    x = expand(fit["x"])
     direction = model.light(x)
     lamp = obs.peak_point + obs.scale * direction
     timings["fit"] = time.perf_counter() - clock
