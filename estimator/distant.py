@@ -7,25 +7,35 @@ only, and the irradiance is the same everywhere (absorbed into Ks):
 pixels' centroid to the camera; ``l``, Ks and σ are fitted in two stages:
 
 * global: a deterministic grid of light directions on the hemisphere about
-  the mean normal (plus the mirror of ``v`` about the peak pixel's normal)
-  times a log-spaced grid of σ (plus the starting σ), Ks per channel profiled
-  out by linear least squares; the lowest cost wins, and candidates whose
-  cost is within :data:`TIE_TOLERANCE` × Σ I² of the lowest count as tied,
-  resolved by the smallest angle to the mirror direction, then the smallest
-  ``|ln σ/σ0|``, then grid order;
-* refinement: a robust fit of ``(l, Ks, σ)`` from the winner, with a weak
-  anchor on ``l`` and σ at the winner (:data:`ANCHOR_WEIGHT`).
+  the specular pixels' mean normal (plus ``l0``, the mirror of ``v`` about
+  the peak pixel's normal) times a log-spaced grid of σ (plus the
+  regression line's σ at ``l0``, eq. 16–17), Ks per channel profiled out
+  by linear least squares; the lowest cost wins, and candidates whose cost
+  is within :data:`TIE_TOLERANCE` × Σ I² of the lowest count as tied,
+  resolved by the smallest angle to ``l0``, then the smallest ``|ln σ/σ0|``,
+  then grid order;
+* refinement: a robust fit of ``(l, Ks, σ)`` from the winner, with an
+  analytic Jacobian and a weak anchor on ``l`` and σ at the winner
+  (:data:`ANCHOR_WEIGHT`).
 
-Why both: the landscape can be flat, not just multimodal. On a plane every
-pixel has the same normal, so the distant model is one constant per channel
-and *every* light direction and σ fit equally well (only Ks·lobe is
-determined). An unanchored fit then drifts along that valley wherever the
-last bits of its finite-difference Jacobian push it: rendering the same
-board twice gave direction errors of 17.5° and 9.6°. The grid's tie-break
-and the anchor make the answer the valley point nearest the mirror
-direction, which stays put. The starting σ, when every pixel has the same α
-as on a plane, is 0.1 rad (:data:`PLANE_SIGMA`): there σ is not determined by
-the data and is reported as that value.
+Why: the landscape is multimodal on curved surfaces, and flat on a plane.
+There every pixel has the same normal, so the distant model is one constant
+per channel and *every* light direction and σ fit equally well (only
+Ks × lobe is determined). The former single local fit from ``l0`` drifted
+along that valley wherever the last bits pushed it: the same board rendered
+on two machines gave direction errors of 17.5° and 9.6°, and ±1-ulp changes
+of one render gave 7.7°–19.1°. So on a plane (α spreads by less than
+:data:`PLANE_ALPHA_SPREAD` over the specular pixels) ``l`` stays at ``l0``
+and σ at :data:`PLANE_SIGMA`, both not determined by the data, and only Ks
+is fitted.
+
+Stability: a ±1-ulp float32 change of every image (stack, P, N) moves the
+light direction by at most 1e-5 rad, ``lamp_position`` by at most 1e-5 of
+the camera–highlight distance and σ and Ks by at most 1e-4 relative
+(measured on analytic captures: ≤ 2e-7 and ≤ 7e-6;
+``tests/test_estimator_stability.py``), unless the peak pixel changes: the
+reported lamp hangs from the peak's surface point (below), which is
+discontinuous by design, as in ``paper-init``.
 
 A distant light has no position: the reported ``lamp_position`` is the
 peak's surface point plus ``l`` times the camera–highlight distance (the
@@ -52,7 +62,7 @@ from nearlight.reflectance import mirror_direction, normalize, tangent_basis, to
 #: lowest are tied. A 1-ulp float32 change of every pixel moves a cost by at
 #: most 2 · 2⁻²⁴ · Σ |r| |I| ≤ 1.2e-7 Σ I²; 1e-5 is ~80 times that, and far
 #: below the cost step between neighbouring grid directions of a curved
-#: surface (≥ 1e-3 Σ I² measured on the analytic sphere).
+#: surface (≥ 1.7e-2 Σ I² measured on two analytic spheres, 96 × 72).
 TIE_TOLERANCE = 1e-5
 
 #: Weight of the anchor residuals ``w · (a, b, ln σ/σ_w)`` of the refinement,
@@ -292,17 +302,10 @@ def distant_estimate(
 ) -> Estimate:
     """Method ``distant``: fit one light direction, Ks and σ with one view direction.
 
-    Continuous in the data, apart from the choices every method shares (the
-    specular mask's threshold, the peak pixel, the ``max_pixels`` brightest
-    pixels): a global grid stage and an anchored refinement (see the module
-    docstring) make it land on the same minimum when the image changes by
-    float rounding, where an unanchored local fit drifted by degrees.
-
-    Stability (tested in ``tests/test_estimator_stability.py``): a ±1-ulp
-    float32 change of every image moves the light direction by ≤ 1e-4 rad,
-    σ and Ks by ≤ 1e-4 relative, and ``lamp_position`` by ≤ 1e-4 of the
-    camera–highlight distance, unless the peak pixel changes (then the lamp
-    moves with the peak's surface point, by about one pixel's footprint).
+    See the module docstring for the two stages, the plane case and the
+    stated stability under float rounding (light direction to 1e-5 rad, σ
+    and Ks to 1e-4 relative; ``lamp_position`` to 1e-5 of the
+    camera–highlight distance while the peak pixel stays the same).
 
     Parameters
     ----------
@@ -316,7 +319,7 @@ def distant_estimate(
     -------
     Estimate
         ``stages``: ``init`` (mirror direction, Ks and σ of the regression
-        line), ``global`` (the grid winner) and ``fit``.
+        line), ``global`` (the grid winner, or why it was skipped) and ``fit``.
     """
     clock = time.perf_counter()
     obs = observe(capture, separation=separation, threshold=threshold)
