@@ -36,9 +36,11 @@ Stability: a ±1-ulp float32 change of every image (stack, P, N) moves the
 light direction by at most 1e-5 rad, ``lamp_position`` by at most 1e-5 of
 the camera–highlight distance and σ and Ks by at most 1e-4 relative
 (measured on analytic captures: ≤ 2e-7 and ≤ 7e-6;
-``tests/test_estimator_stability.py``), unless the peak pixel changes: the
-reported lamp hangs from the peak's surface point (below), which is
-discontinuous by design, as in ``paper-init``.
+``tests/test_estimator_stability.py``). The reported lamp hangs from the
+peak's surface point (below), a discrete choice: rounding does not move it
+(see :data:`~nearlight.estimator.observation.PEAK_TIE`), a larger change
+that makes another pixel the brightest does, by that pixel's offset, while
+the direction stays.
 
 A distant light has no position: the reported ``lamp_position`` is the
 peak's surface point plus ``l`` times the camera–highlight distance (the
@@ -309,7 +311,7 @@ def distant_estimate(
     See the module docstring for the two stages, the plane case and the
     stated stability under float rounding (light direction to 1e-5 rad, σ
     and Ks to 1e-4 relative; ``lamp_position`` to 1e-5 of the
-    camera–highlight distance while the peak pixel stays the same).
+    camera–highlight distance).
 
     Parameters
     ----------

@@ -35,15 +35,18 @@ steps are implemented as what they are meant to do rather than as printed:
 Step 6 searches ``{t − Δt, t, t + Δt}``, keeping t on ties.
 
 Both methods are discontinuous by design: they pick the brightest specular
-pixel (the peak) and a t on the Δt grid, and float rounding can flip either
-choice where two pixels, or two grid values of E_p (or of E_energy in step
-6), are equal to the last bits: a symmetric scene has two mirror-image
-peaks, and the lamp jumps between their rays (σ, Ks and t stay the same
-there). What stays put: as long as the peak pixel and the chosen t are the
-same, a ±1-ulp float32 change of every image (stack, P, N) moves the lamp
-by at most 1e-5 of the camera–highlight distance (it moves only with the
-ray) and σ and Ks by at most 1e-4 relative (measured on analytic captures:
-≤ 1e-7 and ≤ 3e-6, with or without camera noise;
+pixel (the peak) and a t on the Δt grid, and an image change that reorders
+two pixels' brightness, or two grid values of E_p (or of E_energy in step
+6), moves the lamp to another ray or grid point. Float rounding alone does
+not move the peak: pixels within 2⁻¹⁹ (16 float32 ulps) of the brightest
+are tied and resolved by position (:data:`~nearlight.estimator.observation.PEAK_TIE`),
+so a symmetric scene's two mirror-image peaks give the same ray on every
+machine; a larger difference between them picks the brighter one, and the
+lamp jumps to the mirror-image ray (σ, Ks and t stay). What stays put: with
+the same peak pixel and t, a ±1-ulp float32 change of every image (stack,
+P, N) moves the lamp by at most 1e-5 of the camera–highlight distance (it
+moves only with the ray) and σ and Ks by at most 1e-4 relative (measured on
+analytic captures: ≤ 1e-7 and ≤ 3e-6, with or without camera noise;
 ``tests/test_estimator_stability.py``).
 """
 
