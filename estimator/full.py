@@ -124,6 +124,21 @@ def full_estimate(
 ) -> Estimate:
     """Method ``full``: ``paper-init``, then a robust fit of lamp position, Ks and σ.
 
+    Lands on the same minimum for inputs that differ by float rounding
+    wherever that minimum is unique: the multi-start
+    (:func:`_starts`) makes the answer independent of which start wins when
+    several reach the same minimum, and of the peak pixel ``paper-init``
+    picks (a symmetric board's two mirror-image peaks give the same lamp).
+    Stability (``tests/test_estimator_stability.py``): a ±1-ulp float32
+    change of every image (stack, P, N) moves the lamp by at most 3e-5 of
+    the camera–highlight distance and σ and Ks by at most 1e-4 relative.
+    Measured on analytic captures: ≤ 1e-6 and ≤ 5e-6 noise-free; with
+    camera noise ≤ 4e-6 and ≤ 2e-5, because the robust loss scale
+    (3 × MAD of the residuals) then moves by up to ~1 % and the fit with
+    it (with ``f_scale`` fixed: ≤ 4e-7). Where the data hold two minima of
+    equal cost to the last bits, the lower-cost start wins and the answer
+    can flip between them; no shipped scene has shown one.
+
     Parameters
     ----------
     capture : Capture

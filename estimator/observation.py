@@ -52,7 +52,10 @@ class Observation:
         peak, and not an isolated hot pixel (> 2 × its 3×3 median).
     peak : tuple of int
         (row, column) of the brightest mean specular, isolated hot pixels
-        excluded (see :func:`_spikes`, :func:`_peak_pixel`).
+        excluded (see :func:`_spikes`, :func:`_peak_pixel`). A discrete
+        choice: it stays put under float rounding (pixels within
+        :data:`PEAK_TIE` of the maximum are tied and resolved by position),
+        but jumps where a pixel's brightness crosses that band.
     camera_position : ndarray, shape (3,)
     scale : float
         Distance from the camera to the peak's surface point, metres: the
@@ -265,11 +268,19 @@ def _spikes(lum: np.ndarray, surface: np.ndarray) -> np.ndarray:
     return surface & (lum > 2.0 * np.maximum(med, 0.0))
 
 
+#: Pixels within this fraction of the brightest count as sharing the maximum
+#: (:func:`_peak_pixel`): 2⁻¹⁹ ≈ 1.9e-6, i.e. 16 float32 ulps, so that two
+#: pixels equal but for float rounding (a symmetric scene's mirror-image
+#: peaks, rendered on two machines) do not flip the peak with the last bits.
+PEAK_TIE = 2.0**-19
+
+
 def _peak_pixel(lum: np.ndarray, usable: np.ndarray) -> tuple[int, int]:
-    """Brightest usable pixel; when several share the maximum (a clipped
-    highlight), the one nearest their centroid."""
+    """Brightest usable pixel; when several share the maximum to within
+    :data:`PEAK_TIE` (a clipped highlight, mirror-image peaks), the one
+    nearest their centroid, then the first in row-major order."""
     value = np.where(usable, lum, -np.inf)
-    top = value >= value.max() - 1e-12 * abs(value.max())
+    top = value >= value.max() - PEAK_TIE * abs(value.max())
     rows, cols = np.nonzero(top)
     if len(rows) == 1:
         return int(rows[0]), int(cols[0])
