@@ -30,7 +30,8 @@ errors of 17.5° and 9.6° on two machines, and 9.0°–19.1° after ±1-ulp
 changes of one render. So on a plane (α spreads by less than
 :data:`PLANE_ALPHA_SPREAD` over the specular pixels) ``l`` stays at ``l0``
 and σ at :data:`PLANE_SIGMA`, neither being determined by the data, and
-only Ks is fitted.
+only Ks is fitted; ``diagnostics["undetermined"]`` then names them, and the
+evaluation scores no σ error for such an estimate.
 
 Stability: a ±1-ulp float32 change of every image (stack, P, N) moves the
 light direction by at most 1e-5 rad, ``lamp_position`` by at most 1e-5 of
@@ -386,7 +387,8 @@ def distant_estimate(
             "fit": {"light_direction": direction, "ks": x[2:5], "sigma": x[5], "n_pixels": int(use.sum()),
                     **{k: fit[k] for k in ("f_scale", "cost", "nfev", "status", "rms")}},
         },
-        diagnostics={"peak_pixel": list(obs.peak), "n_specular_pixels": int(obs.mask.sum())},
+        diagnostics={"peak_pixel": list(obs.peak), "n_specular_pixels": int(obs.mask.sum()),
+                     "undetermined": ["light_direction", "sigma"] if one_alpha else []},
         timings=timings,
         light_model={"type": "distant", "light_direction": direction, "view_direction": view},
     )

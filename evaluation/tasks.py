@@ -86,6 +86,9 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
         model (:func:`nearlight.estimator.render_specular`), which knows
         distant-light estimates too.
 
+    A σ the estimator declares undetermined (``estimate.diagnostics["undetermined"]``,
+    e.g. ``distant`` on a plane) gets no σ error (NaN): any value fits the data.
+
     Returns
     -------
     dict
@@ -110,7 +113,8 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
         "lamp_position_error_pct": metrics.lamp_position_error_pct(lamp_est, lamp_true, origin=origin),
         "direction_error_deg": metrics.direction_error_deg(lamp_est, lamp_true, origin=origin),
         "distance_error_m": metrics.distance_error(lamp_est, lamp_true, origin=origin),
-        "sigma_rel_error": metrics.sigma_relative_error(estimate.sigma, sigma_true),
+        "sigma_rel_error": math.nan if "sigma" in estimate.diagnostics.get("undetermined", ())
+        else metrics.sigma_relative_error(estimate.sigma, sigma_true),
         "ks_rel_error": math.nan if ks_true is None else metrics.ks_relative_error(estimate.ks, ks_true),
         "specular_rmse": rmse,
         "specular_rmse_rel": rmse / float(np.max(observed[mask])),
