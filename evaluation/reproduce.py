@@ -380,8 +380,13 @@ def reproduce(out: str | Path, *, quick: bool = False, progress: bool = True) ->
         if name != "near_vs_distant":
             run.bar.update()
     run.bar.close()
+    from nearlight.evaluation.engine import code_version
+    from nearlight.evaluation.environment import collect
+
     doc = {
         "nearlight_version": __version__,
+        "code_version": code_version(),
+        "environment": collect(),
         "profile": dataclasses.asdict(profile),
         "elapsed_s": time.perf_counter() - start,
         "paper": PAPER,

@@ -15,12 +15,49 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="out/reproduce", help="report folder (default: %(default)s)")
     p.add_argument("--quick", action="store_true", help="small images and 4 analyzer angles (under 2 minutes)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--against", metavar="DIR",
+                   help="then compare every table with DIR/paper_reproduction.json (same profile) within the "
+                   "tolerances the report states; exit 1 if any number differs")
     p.set_defaults(run=_run)
 
 
-def _run(args: argparse.Namespace) -> int:
-    from nearlight.evaluation.reproduce import reproduce
+def _reference(folder: str, profile: str) -> dict:
+    """The reference document of ``--against``, checked before any work."""
+    import json
+    from pathlib import Path
 
+    from nearlight.errors import UserError
+
+    path = Path(folder) / "paper_reproduction.json"
+    try:
+        doc = json.loads(path.read_bytes().decode("utf-8"))
+    except OSError as exc:
+        raise UserError(f"--against {path}: cannot read ({exc.strerror or exc}); expected a folder written by "
+                        "`nearlight reproduce`") from None
+    except ValueError as exc:
+        raise UserError(f"--against {path}: not valid JSON ({' '.join(str(exc).split())[:80]})") from None
+    if not (isinstance(doc, dict) and isinstance(doc.get("experiments"), dict)):
+        raise UserError(f"--against {path}: expected a paper_reproduction.json document with experiments")
+    got = (doc.get("profile") or {}).get("name")
+    if got != profile:
+        raise UserError(f"--against {path}: profile {got!r}, this run is {profile!r} (compare like with like)")
+    return doc
+
+
+def _run(args: argparse.Namespace) -> int:
+    import json
+
+    from nearlight.evaluation.reproduce import FULL, QUICK, reproduce
+
+    ref = _reference(args.against, (QUICK if args.quick else FULL).name) if args.against else None
     md = reproduce(args.out, quick=args.quick, progress=not args.no_progress)
     print(md)
-    return 0
+    if ref is None:
+        return 0
+    from nearlight.evaluation.reproduce_check import check
+
+    lines, misses = check(json.loads((md.parent / "paper_reproduction.json").read_text()), ref)
+    print(f"against {args.against} (made by {ref.get('code_version', ref.get('nearlight_version'))}):")
+    for line in lines:
+        print(f"  {line}")
+    return 1 if misses else 0

@@ -117,15 +117,20 @@ direction error seen from the highlight.
 
 def markdown(doc: dict[str, Any]) -> str:
     """The whole report."""
+    from nearlight.evaluation.reproduce_check import tolerance_text
+
     p = doc["profile"]
+    env = doc.get("environment") or {}
+    where = f" on {env['cpu']} ({env['mitsuba_variant']})" if env else ""
     head = f"""# Paper reproduction
 
 Hara, Nishino, Nakazawa, Ikeuchi, "Estimating Light Position and Surface Reflectance
 from Specular Reflection under Perspective Projection", reproduced on Mitsuba 3
-renders by nearlight {doc['nearlight_version']}. Profile `{p['name']}`: {p['resolution'][0]}×{p['resolution'][1]}
-pixels, {len(p['analyzer_angles_deg'])} analyzer angles; the run took
+renders by nearlight {doc.get('code_version', doc['nearlight_version'])}{where}. Profile `{p['name']}`:
+{p['resolution'][0]}×{p['resolution'][1]} pixels, {len(p['analyzer_angles_deg'])} analyzer angles; the run took
 {doc['elapsed_s']:.0f} s. Every number below was produced by this run (see
-`paper_reproduction.json`); the paper's numbers are quoted with their section.
+`paper_reproduction.json`, which also records the environment); the paper's numbers
+are quoted with their section. {tolerance_text()}
 """
     return "\n".join([
         head,

@@ -38,7 +38,8 @@ SWEEP = {
     "name": "interrupt-test",
     "renderer": "analytic",
     "scene": {"width": 24, "height": 18},
-    "axes": {"lamp_distance": [0.3, 0.4, 0.5, 0.6]},
+    # camera noise makes the seeds count (a noise-free configuration runs once whatever the seeds)
+    "axes": {"lamp_distance": [0.3, 0.4, 0.5, 0.6], "noise": {"low": {"full_well": 1000, "saturation": 1.0}}},
     "seeds": 3,
     "crlb": False,
     "methods": [{"name": "slow", "method": "nl_interrupt_plugin:slow", "options": {"delay": 0.3}}],

@@ -64,3 +64,31 @@ def test_unwritable_out_is_a_one_line_error(tmp_path, capsys):
     assert main(["reproduce", "--quick", "--no-progress", "--out", str(tmp_path / "file" / "x")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("nearlight: error:") and "\n" not in err
+
+
+def test_check_against_another_run(quick_report):
+    from nearlight.evaluation.reproduce_check import TOLERANCES, check
+
+    _, doc = quick_report
+    lines, misses = check(doc, doc)
+    assert misses == 0 and [line.split(":")[0] for line in lines] == list(EXPERIMENTS)
+    moved = json.loads(json.dumps(doc))
+    row = moved["experiments"]["board"]["methods"]["full"]
+    row["lamp_position_error_pct"] += 0.5 * TOLERANCES["lamp_position_error_pct"]  # within: agrees
+    assert check(moved, doc)[1] == 0
+    row["lamp_position_error_pct"] += 5 * TOLERANCES["lamp_position_error_pct"]
+    del moved["experiments"]["near_vs_distant"]["rows"][0]
+    lines, misses = check(moved, doc)
+    assert misses == 1 + len(TOLERANCES), lines
+    assert any("board: full: lamp_position_error_pct" in line for line in lines)
+
+
+def test_against_a_reference_of_another_profile_is_refused_before_work(quick_report, tmp_path, capsys):
+    _, doc = quick_report
+    ref = tmp_path / "ref"
+    ref.mkdir()
+    (ref / "paper_reproduction.json").write_text(json.dumps({**doc, "profile": {**doc["profile"], "name": "full"}}))
+    out = tmp_path / "out"
+    assert main(["reproduce", "--quick", "--no-progress", "--out", str(out), "--against", str(ref)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "profile 'full', this run is 'quick'" in err and "\n" not in err and not out.exists()

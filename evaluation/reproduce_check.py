@@ -1,0 +1,93 @@
+"""Does a paper reproduction agree with another run of it (another machine, another day)?
+
+Every number of the reproduction is deterministic for given code: renders are
+exact for direct light, camera noise is seeded and a continuous function of the
+render, and every method is stable under float rounding (each states its
+bound in its docstring; ``tests/test_estimator_stability.py``). What can differ
+between two machines is the renders' last bits (Dr.Jit compiles for the host
+CPU). Two runs of the same profile therefore agree, metric by metric and row by
+row, within :data:`TOLERANCES` (absolute, in the metric's units) or
+:data:`RELATIVE` of the reference value, whichever is larger. The bounds are
+10–100 times the methods' measured float-rounding spread (≤ 3e-5 of the
+distance for ``full``, ≤ 1e-5 for the others): tight enough that any change of
+code or data shows. The paper's methods are discontinuous by design (the
+brightest pixel): should a render's last bits ever change which pixel is
+brightest, their rows move by far more and the check names them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from typing import Any
+
+#: Allowed absolute difference per metric between two runs of the same profile, in the metric's units.
+TOLERANCES: dict[str, float] = {
+    "lamp_position_error_pct": 0.01,  # percentage points of the lamp's distance
+    "direction_error_deg": 0.01,
+    "sigma_rel_error": 1e-3,
+    "ks_rel_error": 1e-3,
+    "specular_rmse_rel": 1e-4,
+}
+#: Allowed relative difference (of the reference value), when larger than the absolute one.
+RELATIVE = 1e-3
+
+
+def rows(doc: dict[str, Any]) -> Iterator[tuple[str, str, str, float | None]]:
+    """Every compared number of a reproduction document: ``(experiment, row, metric, value)``."""
+    for name, ex in doc["experiments"].items():
+        if "methods" in ex:
+            for method, r in ex["methods"].items():
+                for metric in TOLERANCES:
+                    yield name, method, metric, r.get(metric)
+        for r in ex.get("rows", []):
+            for metric in TOLERANCES:
+                yield name, f"{r['method']} at {r['distance_m']:g} m", metric, r.get(metric)
+
+
+def agree(new: float | None, ref: float | None, metric: str) -> bool:
+    """Whether two values of ``metric`` agree within the tolerance (both missing agrees)."""
+    if new is None or ref is None:
+        return new is None and ref is None
+    return math.isfinite(new) and abs(new - ref) <= max(TOLERANCES[metric], RELATIVE * abs(ref))
+
+
+def check(new: dict[str, Any], ref: dict[str, Any]) -> tuple[list[str], int]:
+    """Compare two reproduction documents table by table.
+
+    Parameters
+    ----------
+    new, ref : dict
+        ``paper_reproduction.json`` documents of the same profile.
+
+    Returns
+    -------
+    lines : list of str
+        One summary line per experiment (table), then one line per disagreeing number.
+    misses : int
+        How many numbers disagree (a row of ``ref`` missing from ``new`` counts once per metric).
+    """
+    have = {(e, r, m): v for e, r, m, v in rows(new)}
+    per_table: dict[str, list[int]] = {}
+    details = []
+    for e, r, m, v in rows(ref):
+        total = per_table.setdefault(e, [0, 0])
+        total[0] += 1
+        key = (e, r, m)
+        if key not in have:
+            total[1] += 1
+            details.append(f"  {e}: {r}: {m}: missing from the new run (reference {v})")
+        elif not agree(have[key], v, m):
+            total[1] += 1
+            tol = max(TOLERANCES[m], RELATIVE * abs(v)) if v is not None else TOLERANCES[m]
+            details.append(f"  {e}: {r}: {m}: {have[key]} vs reference {v} (allowed ±{tol:.3g})")
+    lines = [f"{e}: {n - k} of {n} numbers agree" + (f", {k} differ" if k else "") for e, (n, k) in per_table.items()]
+    return lines + details, sum(k for _, k in per_table.values())
+
+
+def tolerance_text() -> str:
+    """The tolerances as one Markdown sentence, for the report."""
+    parts = ", ".join(f"{m} ±{t:g}" for m, t in TOLERANCES.items())
+    return (f"Two runs of this profile on any machine agree, number by number, within {parts} "
+            f"(or {RELATIVE:g} of the value, if larger); `nearlight reproduce --against DIR` checks a run "
+            "against another one's `paper_reproduction.json`, table by table.")
