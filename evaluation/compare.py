@@ -241,9 +241,9 @@ def compare_frames(
         if kind == "exact":
             c.verdict = "worse" if fn > fb else "better" if fn < fb else "same"
         elif fb != fn:
-            table = [[fn, len(n) - fn], [fb, len(b) - fb]]
-            c.p_value = float(fisher_exact(table, alternative="greater" if fn / len(n) > fb / len(b) else "less")[1])
             up = fn / len(n) > fb / len(b)
+            table = [[fn, len(n) - fn], [fb, len(b) - fb]]
+            c.p_value = float(fisher_exact(table, alternative="greater" if up else "less")[1])
             c.verdict = ("worse" if up else "better") if c.p_value < level else "same"
         checks.append(c)
         bok, nok = b[b["status"] == "ok"], n[n["status"] == "ok"]
