@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import importlib
 import os
-import re
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -13,6 +12,7 @@ from nearlight.capture import Capture, read_capture
 from nearlight.errors import UserError
 from nearlight.estimator.distant import distant_estimate
 from nearlight.estimator.full import full_estimate
+from nearlight.estimator.options import check_options
 from nearlight.estimator.paper import initial_estimate, paper_estimate
 from nearlight.estimator.result import Estimate
 
@@ -54,9 +54,6 @@ def load_method(spec: str) -> Callable[..., Estimate]:
     return fn
 
 
-_UNEXPECTED = re.compile(r"unexpected keyword argument '([^']+)'")
-
-
 def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", **options) -> Estimate:
     """Estimate the lamp position and specular reflectance of one capture.
 
@@ -68,7 +65,9 @@ def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", **o
         ``"paper"`` (default), ``"paper-init"``, ``"full"``, ``"distant"`` or a
         plug-in's ``"module:function"``.
     **options
-        Method options (see each method's docstring), e.g. ``t_max=2.0``.
+        Method options (see each method's docstring), e.g. ``t_max=2.0``;
+        checked against the method's declaration before it runs
+        (:func:`~nearlight.estimator.options.check_options`).
 
     Returns
     -------
@@ -80,19 +79,27 @@ def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", **o
     Raises
     ------
     UserError
-        Bad input, unknown method or option.
+        Bad input, unknown method, an option the method does not declare or
+        of the wrong type or range, or a plug-in that fails (its exception in
+        one line: a plug-in is the user's code).
     """
     fn = load_method(method)
+    options = check_options(fn, options, method=method)
     if isinstance(capture, (str, os.PathLike, Path)):
         capture = read_capture(capture)
     clock = time.perf_counter()
-    try:
+    if method in METHODS:
         result = fn(capture, **options)
-    except TypeError as exc:
-        match = _UNEXPECTED.search(str(exc))
-        if match is None or match.group(1) not in options:
+    else:
+        try:
+            result = fn(capture, **options)
+        except UserError:
             raise
-        raise UserError(f"option {match.group(1)!r}: not accepted by method {method}") from None
+        except Exception as exc:
+            raise UserError(
+                f"method {method}: failed with {type(exc).__name__}: {' '.join(str(exc).split())[:200]} "
+                "(a plug-in is fn(capture, **options) -> nearlight.estimator.Estimate)"
+            ) from None
     if not isinstance(result, Estimate):
         raise UserError(f"method {method}: returned {type(result).__name__}, expected nearlight.estimator.Estimate")
     result.method = method

@@ -68,11 +68,12 @@ def _write_json(doc: dict, path: Path) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nearlight.capture import read_capture
-    from nearlight.estimator.api import estimate
-
+    from nearlight.estimator.api import estimate, load_method
+    from nearlight.estimator.options import check_options
     from nearlight.outputs import check_file_out
 
-    options = parse_options(args.option)
+    # the method and its options are checked before anything is read or written
+    options = check_options(load_method(args.method), parse_options(args.option), method=args.method)
     # Both output places are checked before any work; the plot is drawn before the
     # JSON is written, so a failing plot never leaves a lone estimate behind.
     if args.json:

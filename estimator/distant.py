@@ -59,7 +59,10 @@ from threadpoolctl import threadpool_limits
 from nearlight.capture import Capture
 from nearlight.errors import UserError
 from nearlight.estimator.fitting import log_regression, robust_fit
+from nearlight.estimator.full import LOSSES
 from nearlight.estimator.observation import Observation, observe
+from nearlight.estimator.options import Choice, Count, Fraction, Positive
+from nearlight.estimator.separation import SEPARATION_METHODS
 from nearlight.estimator.pixels import fit_pixels
 from nearlight.estimator.result import Estimate
 from nearlight.reflectance import mirror_direction, normalize, tangent_basis, torrance_sparrow
@@ -301,11 +304,11 @@ def _initial(obs: Observation, view: np.ndarray, where: str) -> tuple[np.ndarray
 def distant_estimate(
     capture: Capture,
     *,
-    separation: str = "fit",
-    threshold: float = 0.05,
-    loss: str = "soft_l1",
-    max_pixels: int = 20000,
-    saturation: float | None = None,
+    separation: Choice(SEPARATION_METHODS) = "fit",
+    threshold: Fraction = 0.05,
+    loss: Choice(LOSSES) = "soft_l1",
+    max_pixels: Count = 20000,
+    saturation: Positive | None = None,
 ) -> Estimate:
     """Method ``distant``: fit one light direction, Ks and σ with one view direction.
 

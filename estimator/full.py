@@ -21,7 +21,9 @@ from nearlight.capture import Capture
 from nearlight.errors import UserError
 from nearlight.estimator.fitting import log_regression, robust_fit
 from nearlight.estimator.observation import Observation
+from nearlight.estimator.options import Choice, Count, CountOrZero, Positive, forwards
 from nearlight.estimator.paper import RaySearch, stage_one
+from nearlight.estimator.separation import SEPARATION_METHODS
 from nearlight.estimator.pixels import fit_pixels
 from nearlight.estimator.result import Estimate
 from nearlight.reflectance import shading_geometry, torrance_sparrow
@@ -111,15 +113,16 @@ def _starts(init: Estimate, obs: Observation, *, n_starts: int) -> list[np.ndarr
     return starts
 
 
+@forwards(stage_one, fixed={"strict_t_max"})
 def full_estimate(
     capture: Capture,
     *,
-    loss: str = "soft_l1",
-    f_scale: float | None = None,
-    max_pixels: int = 20000,
-    saturation: float | None = None,
-    n_starts: int = 6,
-    separation: str = "projected",
+    loss: Choice(LOSSES) = "soft_l1",
+    f_scale: Positive | None = None,
+    max_pixels: Count = 20000,
+    saturation: Positive | None = None,
+    n_starts: CountOrZero = 6,
+    separation: Choice(SEPARATION_METHODS) = "projected",
     **init_options,
 ) -> Estimate:
     """Method ``full``: ``paper-init``, then a robust fit of lamp position, Ks and σ.

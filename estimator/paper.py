@@ -62,6 +62,8 @@ from nearlight.capture import Capture
 from nearlight.errors import UserError
 from nearlight.estimator.fitting import log_regression
 from nearlight.estimator.observation import Observation, observe
+from nearlight.estimator.options import Choice, Count, Fraction, Positive, forwards
+from nearlight.estimator.separation import SEPARATION_METHODS
 from nearlight.estimator.result import Estimate
 from nearlight.reflectance import mirror_direction, shading_geometry
 
@@ -176,25 +178,15 @@ def t_search_defaults(obs: Observation, t_max: float | None, dt: float | None) -
     return t_max, dt
 
 
-def initial_estimate(capture: Capture, **options) -> Estimate:
-    """Method ``paper-init``: the paper's first stage (§3.2–3.3); options as :func:`stage_one`.
-
-    Discontinuous by design (the peak pixel, t on the Δt grid); with both
-    unchanged, stable under float rounding to 1e-5 of the camera–highlight
-    distance (lamp) and 1e-4 relative (σ, Ks): see the module docstring.
-    """
-    return stage_one(capture, **options)[0]
-
-
 def stage_one(
     capture: Capture,
     *,
-    separation: str = "fit",
-    threshold: float = 0.05,
-    t_max: float | None = None,
-    dt: float | None = None,
-    search: str = "fast",
-    n_coarse: int = 48,
+    separation: Choice(SEPARATION_METHODS) = "fit",
+    threshold: Fraction = 0.05,
+    t_max: Positive | None = None,
+    dt: Positive | None = None,
+    search: Choice(SEARCHES) = "fast",
+    n_coarse: Count = 48,
     strict_t_max: bool = True,
 ) -> tuple[Estimate, Observation]:
     """The paper's first stage (§3.2–3.3): the estimate and the observation it used.
@@ -272,6 +264,18 @@ def stage_one(
     ), obs
 
 
+
+@forwards(stage_one)
+def initial_estimate(capture: Capture, **options) -> Estimate:
+    """Method ``paper-init``: the paper's first stage (§3.2–3.3); options as :func:`stage_one`.
+
+    Discontinuous by design (the peak pixel, t on the Δt grid); with both
+    unchanged, stable under float rounding to 1e-5 of the camera–highlight
+    distance (lamp) and 1e-4 relative (σ, Ks): see the module docstring.
+    """
+    return stage_one(capture, **options)[0]
+
+
 class Energy:
     """E_energy of eq. 18 for the lamp on the peak ray: ``Σ (target − Ks · base · exp(−α² κ² / 2))²``.
 
@@ -296,12 +300,13 @@ class Energy:
     """
 
     SPACES = ("ratio", "ratio-t", "radiance")
+    PIXELS = ("surface", "specular")
 
     def __init__(
         self, obs: Observation, origin: np.ndarray, direction: np.ndarray, *, pixels: str = "surface",
         space: str = "ratio", t_ref: float | None = None,
     ):
-        if pixels not in ("surface", "specular"):
+        if pixels not in self.PIXELS:
             raise UserError(f"option pixels: expected 'surface' or 'specular', got {pixels!r}")
         if space not in self.SPACES:
             raise UserError(f"option energy: expected one of {', '.join(self.SPACES)}, got {space!r}")
@@ -429,17 +434,18 @@ def alternating_minimisation(
     }
 
 
+@forwards(stage_one)
 def paper_estimate(
     capture: Capture,
     *,
-    gamma: float | None = None,
-    eps1: float | None = None,
-    eps2: float | None = None,
-    eps3: float | None = None,
-    eps4: float | None = None,
-    max_outer: int = 2000,
-    pixels: str = "surface",
-    energy: str = "ratio",
+    gamma: Positive | None = None,
+    eps1: Positive | None = None,
+    eps2: Positive | None = None,
+    eps3: Positive | None = None,
+    eps4: Positive | None = None,
+    max_outer: Count = 2000,
+    pixels: Choice(Energy.PIXELS) = "surface",
+    energy: Choice(Energy.SPACES) = "ratio",
     **init_options,
 ) -> Estimate:
     """Method ``paper``: ``paper-init`` followed by the AM refinement of eq. 18 (§3.4).

@@ -315,15 +315,15 @@ def _method(path: str, i: int, m: str | _Method, check: bool) -> Method:
     spec = _Method(method=m) if isinstance(m, str) else m
     if check:
         from nearlight.estimator import METHODS, load_method
+        from nearlight.estimator.options import check_options
 
-        if ":" in spec.method:
-            try:
-                load_method(spec.method)
-            except UserError as exc:
-                raise UserError(f"{path}: methods[{i}]: {exc}") from None
-        elif spec.method not in METHODS:
+        if ":" not in spec.method and spec.method not in METHODS:
             raise UserError(
                 f"{path}: methods[{i}]: unknown method {spec.method!r} "
                 f"(expected one of {', '.join(METHODS)} or module:function)"
             )
+        try:
+            check_options(load_method(spec.method), spec.options, method=spec.method)
+        except UserError as exc:
+            raise UserError(f"{path}: methods[{i}]: {exc}") from None
     return Method(spec.name or spec.method, spec.method, dict(spec.options))

@@ -125,11 +125,10 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
 
 
 def run_method(capture: Any, method: str, options: Mapping[str, Any]) -> Any:
-    """Run a built-in method by name or a ``module:function`` estimator on ``capture``."""
-    from nearlight.estimator import estimate, load_method
+    """Run a built-in method by name or a ``module:function`` estimator on ``capture``, through
+    :func:`nearlight.estimator.estimate` (options checked, result type checked, timings)."""
+    from nearlight.estimator import estimate
 
-    if ":" in method:
-        return load_method(method)(capture, **options)
     return estimate(capture, method=method, **options)
 
 

@@ -119,3 +119,37 @@ def test_json_that_is_not_format_v1(capture_dir, capsys):
 )
 def test_bad_method_or_option(capture_dir, capsys, argv, needle):
     assert needle in _error(capsys, ["estimate", str(capture_dir), *argv])
+
+
+# Option values of the wrong type or range (the examples, and one per declared kind), refused from each
+# method's declaration (nearlight.estimator.options) before the capture is even read.
+@pytest.mark.parametrize(
+    ("method", "option", "needle"),
+    [
+        ("paper-init", "threshold=abc", "threshold: Input should be a valid number"),
+        ("paper-init", "threshold=null", "threshold: Input should be a valid number"),
+        ("paper-init", "threshold=-0.1", "threshold: Input should be greater than 0"),
+        ("paper-init", "threshold=1.5", "threshold: Input should be less than 1"),
+        ("paper-init", "t_max=[1,2]", "t_max:"),
+        ("paper-init", "search=slow", "search: Value error, expected one of fast, scan"),
+        ("paper-init", "n_coarse=2.5", "n_coarse: Input should be a valid integer"),
+        ("full", "n_starts=-1", "n_starts: Input should be greater than or equal to 0"),
+        ("full", "f_scale=-1", "f_scale: Input should be greater than 0"),
+        ("full", "max_pixels=0", "max_pixels: Input should be greater than or equal to 1"),
+        ("full", "strict_t_max=false", "'strict_t_max': not accepted by method full"),
+        ("paper", "max_outer=-1", "max_outer: Input should be greater than or equal to 1"),
+        ("paper", "energy=joules", "energy: Value error, expected one of ratio, ratio-t, radiance"),
+        ("paper", "dt=NaN", "dt:"),
+        ("distant", "n_starts=3", "'n_starts': not accepted by method distant"),
+    ],
+)
+def test_option_values_are_checked_from_the_declaration(tmp_path, capsys, method, option, needle):
+    missing = tmp_path / "not-read"  # the options are refused before the capture is opened
+    line = _error(capsys, ["estimate", str(missing), "--method", method, "--option", option])
+    assert needle in line, line
+
+
+def test_a_plugin_that_fails_is_one_line(capture_dir, capsys):
+    # json.dumps takes the capture and raises TypeError (not JSON serializable): the user's function failed
+    line = _error(capsys, ["estimate", str(capture_dir), "--method", "json:dumps"])
+    assert "method json:dumps: failed with TypeError" in line
