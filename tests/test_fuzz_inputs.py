@@ -780,6 +780,41 @@ def _show_twins() -> None:
 _show_twins()
 
 
+# --------------------------------------------------------------------------- estimator options
+
+
+#: Values no declared option accepts, whatever its kind (a number, a count, a choice by name, a flag).
+BAD_OPTION_VALUES: list[Any] = ["abc", [1, 2], {"a": 1}]
+
+
+def _estimator_option_cases() -> None:
+    """Every declared option of every built-in method with values none accepts, plus unknown names; through
+    ``estimate --option`` (refused before the capture is read) and a sweep file's ``methods[].options``."""
+    from nearlight.estimator import METHODS
+    from nearlight.estimator.options import declared_options
+
+    rng = random.Random(SEED)
+    for method, fn in METHODS.items():
+        names = list(declared_options(fn)[0])
+        unknown = ["".join(rng.choice("abcdefghijklmnopqrstuvwxyz") for _ in range(8)) for _ in range(2)]
+        pairs = [(n, v) for n in names for v in BAD_OPTION_VALUES] + [(u, 1) for u in unknown]
+        for k, (name, value) in enumerate(pairs):
+            @case(f"option-{method}-{name}-{k}")
+            def build(folder, assets, method=method, name=name, value=value):
+                return ["estimate", str(folder / "no-capture"), "--method", method,
+                        "--option", f"{name}={json.dumps(value)}"], name  # fmt: skip
+
+        name, value = rng.choice(pairs)
+
+        @case(f"sweep-method-option-{method}")
+        def build(folder, assets, method=method, name=name, value=value):
+            doc = {**SWEEP, "methods": [{"method": method, "options": {name: value}}]}
+            return _sweep_argv(_write(folder / "sweep.yaml", _dump(doc)), folder), name
+
+
+_estimator_option_cases()
+
+
 # --------------------------------------------------------------------------- running the cases
 
 
