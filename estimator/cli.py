@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from nearlight.capture import read_capture
     from nearlight.estimator.api import estimate, load_method
     from nearlight.estimator.options import check_options
-    from nearlight.outputs import check_file_out
+    from nearlight.files.outputs import check_file_out
 
     # the method and its options are checked before anything is read or written
     options = check_options(load_method(args.method), parse_options(args.option), method=args.method)

@@ -65,7 +65,7 @@ from nearlight.estimator.options import Choice, Count, Fraction, Positive
 from nearlight.estimator.separation import SEPARATION_METHODS
 from nearlight.estimator.pixels import fit_pixels
 from nearlight.estimator.result import Estimate
-from nearlight.reflectance import mirror_direction, normalize, tangent_basis, torrance_sparrow
+from nearlight.physics.reflectance import mirror_direction, normalize, tangent_basis, torrance_sparrow
 
 #: Candidates whose profiled cost is within this fraction of Σ I² of the
 #: lowest are tied. A 1-ulp float32 change of every pixel moves a cost by at

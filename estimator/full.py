@@ -26,13 +26,13 @@ from nearlight.estimator.paper import RaySearch, stage_one
 from nearlight.estimator.separation import SEPARATION_METHODS
 from nearlight.estimator.pixels import fit_pixels
 from nearlight.estimator.result import Estimate
-from nearlight.reflectance import shading_geometry, torrance_sparrow
+from nearlight.physics.reflectance import shading_geometry, torrance_sparrow
 
 LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 
 
 def ts_bsdf(ks: np.ndarray, sigma: float) -> dict:
-    """A Torrance–Sparrow BSDF dict for :mod:`nearlight.reflectance`."""
+    """A Torrance–Sparrow BSDF dict for :mod:`nearlight.physics.reflectance`."""
     return {"model": "torrance_sparrow", "ks": ks, "sigma": sigma}
 
 

@@ -17,7 +17,7 @@ from nearlight.capture import Capture
 from nearlight.errors import UserError
 from nearlight.estimator.normals import normals_from_positions
 from nearlight.estimator.separation import separate
-from nearlight.reflectance import normalize
+from nearlight.physics.reflectance import normalize
 
 #: Fewest specular pixels the regressions and fits accept.
 MIN_SPECULAR_PIXELS = 10

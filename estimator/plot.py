@@ -11,8 +11,8 @@ from nearlight.capture import Capture
 from nearlight.estimator.observation import specular_image
 from nearlight.estimator.resynth import render_specular
 from nearlight.estimator.result import Estimate
-from nearlight.figures import save_png, tonemap
-from nearlight.outputs import check_file_out
+from nearlight.files.figures import save_png, tonemap
+from nearlight.files.outputs import check_file_out
 
 
 def plot_estimate(capture: Capture, estimate: Estimate, path: str | os.PathLike) -> Path:

@@ -9,7 +9,7 @@ from nearlight.errors import UserError
 from nearlight.estimator.distant import distant_specular
 from nearlight.estimator.observation import surface_geometry
 from nearlight.estimator.result import Estimate
-from nearlight.reflectance import specular_radiance
+from nearlight.physics.reflectance import specular_radiance
 
 
 def _point(P, N, camera, estimate: Estimate) -> np.ndarray:

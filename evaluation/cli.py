@@ -64,7 +64,7 @@ def _sweep(args: argparse.Namespace) -> int:
         raise UserError(f"--workers: expected a positive integer, got {args.workers}")
     if args.scheduler is not None:
         check_scheduler(args.scheduler)
-    from nearlight.outputs import check_folder
+    from nearlight.files.outputs import check_folder
 
     check_folder(args.out, what="results folder")
     sweep = load_sweep(args.sweep)

@@ -337,7 +337,7 @@ def compare_dirs(
             "environment_differences": diffs,
             "checks": [{**dataclasses.asdict(c), "regression": c.regression} for c in checks],
         }  # fmt: skip
-        from nearlight.jsonable import jsonable
+        from nearlight.files.jsonable import jsonable
 
         _write_json(Path(json_out), jsonable(doc))
     return checks, lines

@@ -9,7 +9,7 @@ differences; :func:`specular_crlb` applies it to a capture's specular lobe.
 The specular model (what the bound is about): parameters
 ``θ = (lamp x, y, z [m], Ks r, g, b, σ [rad])``, observations the specular
 radiance ``Is`` of every surface pixel and channel, from
-:func:`nearlight.reflectance.specular_radiance` with the Torrance–Sparrow lobe
+:func:`nearlight.physics.reflectance.specular_radiance` with the Torrance–Sparrow lobe
 and unit intensity (Ks absorbs the lamp's intensity, as estimators report it).
 Is is not observed directly but through the analyzer stack
 ``y_k = c0 + c1 cos 2θ_k + c2 sin 2θ_k`` with the diffuse offset and the phase
@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from nearlight.estimator.fitting import central_jacobian
-from nearlight.reflectance import specular_radiance
+from nearlight.physics.reflectance import specular_radiance
 
 
 def crlb(model: Callable[[np.ndarray], np.ndarray], theta: Any, *, noise_var: Any, steps: Any) -> np.ndarray:

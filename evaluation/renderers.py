@@ -4,7 +4,7 @@ A renderer knows its scene format (a nested dict), where the keys each sweep
 axis changes live in it, how to check a scene, and how to render one. The
 ``mitsuba`` renderer is the generator (scene files of ``scenes/``, renders
 cached on disk by hash); the ``analytic`` renderer calls
-:func:`nearlight.synthetic.analytic_capture` (numpy only, a board or a sphere,
+:func:`nearlight.generator.analytic.analytic_capture` (numpy only, a board or a sphere,
 ``ideal`` polarization): milliseconds per capture, for estimator studies and
 for testing the evaluation itself.
 """
@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.dotted import get_dotted, set_dotted
+from nearlight.files.dotted import get_dotted, set_dotted
 from nearlight.errors import UserError
-from nearlight.yamlfile import load_yaml_file
+from nearlight.files.yamlfile import load_yaml_file
 
 
 def convert_material(material: dict, model: str) -> dict:
@@ -153,7 +153,7 @@ class AnalyticRenderer(Renderer):
 
     def load_base(self, scene: str | dict, *, base_dir: Path, where: str) -> dict:
         """The base scene with every ``analytic_capture`` default filled in (so axes can change any of them)."""
-        from nearlight.synthetic import DEFAULT_BSDF
+        from nearlight.generator.analytic import DEFAULT_BSDF
 
         doc = super().load_base(scene, base_dir=base_dir, where=where)
         self.validate(doc, where=where)
@@ -169,7 +169,7 @@ class AnalyticRenderer(Renderer):
         super().apply_axis(scene, name, value, where=where)
 
     def _params(self) -> dict[str, inspect.Parameter]:
-        from nearlight.synthetic import analytic_capture
+        from nearlight.generator.analytic import analytic_capture
 
         return dict(inspect.signature(analytic_capture).parameters)
 
@@ -207,7 +207,7 @@ class AnalyticRenderer(Renderer):
                  "bool": "true or false", "str": "a name"}  # fmt: skip
 
     def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
-        from nearlight.synthetic import analytic_capture
+        from nearlight.generator.analytic import analytic_capture
 
         return analytic_capture(**copy.deepcopy(scene))
 

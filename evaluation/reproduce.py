@@ -37,8 +37,8 @@ import numpy as np
 from nearlight import __version__
 from nearlight.capture import Capture
 from nearlight.errors import UserError
-from nearlight.figures import panel_grid, save_png, tonemap
-from nearlight.jsonable import jsonable
+from nearlight.files.figures import panel_grid, save_png, tonemap
+from nearlight.files.jsonable import jsonable
 
 #: The paper's own numbers, quoted with their section (never computed here).
 PAPER: dict[str, dict[str, Any]] = {
@@ -333,7 +333,7 @@ EXPERIMENTS: dict[str, Callable[[_Run], dict[str, Any]]] = {
 
 
 #: Every file ``reproduce`` writes into its folder, with its kind (see
-#: :mod:`nearlight.outputs`): an existing file there is replaced only when it
+#: :mod:`nearlight.files.outputs`): an existing file there is replaced only when it
 #: is of that kind; other files in the folder are left alone.
 REPORT_FILES: dict[str, str] = {
     "paper_reproduction.json": "reproduction-json",
@@ -363,7 +363,7 @@ def reproduce(out: str | Path, *, quick: bool = False, progress: bool = True) ->
     Path
         ``out / "paper_reproduction.md"``.
     """
-    from nearlight.outputs import check_files_in, check_folder, make_folder
+    from nearlight.files.outputs import check_files_in, check_folder, make_folder
 
     out = Path(out)
     check_folder(out, what="report folder")

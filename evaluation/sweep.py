@@ -28,8 +28,8 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from nearlight.errors import UserError
-from nearlight.yamlfile import load_yaml_file
-from nearlight.dotted import set_dotted
+from nearlight.files.yamlfile import load_yaml_file
+from nearlight.files.dotted import set_dotted
 from nearlight.evaluation.renderers import RENDERERS, Renderer
 
 #: Built-in axes: name -> (applied after rendering?, meaning).

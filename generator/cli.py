@@ -51,7 +51,7 @@ def _render(args: argparse.Namespace) -> int:
     from nearlight.generator import load_scene, render_capture
 
     from nearlight.generator.pipeline import check_writable
-    from nearlight.outputs import check_folder
+    from nearlight.files.outputs import check_folder
 
     check_writable(Path(args.out), overwrite=args.overwrite)
     scene = load_scene(args.scene, overrides=args.overrides)
@@ -68,7 +68,7 @@ def _show(args: argparse.Namespace) -> int:
 
     from nearlight.generator.show import contact_sheet
 
-    from nearlight.outputs import check_file_out
+    from nearlight.files.outputs import check_file_out
 
     folder = Path(args.capture)
     named = folder if folder.name not in ("", "..") else folder.resolve()

@@ -1,6 +1,6 @@
 """Linear-Stokes fit of an analyzer stack with its residual (for tests and contact sheets).
 
-The fit itself is :func:`nearlight.stokes.linear_stokes`; this adds the
+The fit itself is :func:`nearlight.physics.polarization.linear_stokes`; this adds the
 per-angle residual and the derived images (amplitude, Imin, DoLP, AoLP).
 """
 
@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from nearlight.stokes import analyzer_matrix, linear_stokes
+from nearlight.physics.polarization import analyzer_matrix, linear_stokes
 
 
 class StokesFit(NamedTuple):

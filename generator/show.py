@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from nearlight.capture import Capture, read_capture
-from nearlight.figures import panel_grid, tonemap
+from nearlight.files.figures import panel_grid, tonemap
 from nearlight.generator.polarimetry import fit_stokes
 
 

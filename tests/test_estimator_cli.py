@@ -9,7 +9,7 @@ import pytest
 
 from nearlight.capture import write_capture
 from nearlight.cli import main
-from nearlight.synthetic import analytic_capture
+from nearlight.generator.analytic import analytic_capture
 
 
 @pytest.fixture

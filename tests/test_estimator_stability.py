@@ -18,7 +18,7 @@ import pytest
 
 from nearlight.estimator import METHODS, estimate
 from nearlight.generator.noise import add_camera_noise
-from nearlight.synthetic import analytic_capture
+from nearlight.generator.analytic import analytic_capture
 
 TS = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1}
 

@@ -36,7 +36,7 @@ import yaml
 
 from nearlight.capture import write_capture
 from nearlight.cli import main
-from nearlight.synthetic import analytic_capture
+from nearlight.generator.analytic import analytic_capture
 
 SEED = 20261125
 ROOT = Path(__file__).resolve().parents[1]

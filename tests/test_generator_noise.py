@@ -11,7 +11,7 @@ from scipy import special, stats
 from nearlight.capture import Camera, Capture, read_capture
 from nearlight.generator import add_camera_noise, add_range_noise
 from nearlight.generator.noise import AUTO_EXPOSURE, EXACT_POISSON_BELOW, noise_rngs, shot_electrons
-from nearlight.synthetic import analytic_capture
+from nearlight.generator.analytic import analytic_capture
 
 ROOT = Path(__file__).resolve().parents[1]
 

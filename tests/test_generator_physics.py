@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from nearlight import reflectance
+from nearlight.physics import reflectance
 from nearlight.generator import load_scene, render_clean
 from nearlight.generator.polarimetry import fit_stokes
 

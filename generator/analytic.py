@@ -3,7 +3,7 @@
 Builds a :class:`~nearlight.capture.Capture` without a renderer, for tests of
 the estimator and the evaluation: a planar board or a sphere seen by a pinhole
 camera, lit by a point lamp behind an ideal linear polarizer, shaded with the
-closed-form models of :mod:`nearlight.reflectance`. The analyzer stack follows
+closed-form models of :mod:`nearlight.physics.reflectance`. The analyzer stack follows
 DESIGN.md's ``ideal`` mode, ``I(θ) = Id/2 + Is·cos²(θ − β)``.
 
 Default scene (tabletop, metres, z up): a 0.4 m board lying on the table at
@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from nearlight.capture import Camera, Capture
-from nearlight.reflectance import diffuse_radiance, normalize, specular_radiance, tangent_basis
+from nearlight.physics.reflectance import diffuse_radiance, normalize, specular_radiance, tangent_basis
 
 #: Default specular BSDF: the paper's simplified Torrance–Sparrow lobe.
 DEFAULT_BSDF = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1}
@@ -198,5 +198,5 @@ def analytic_capture(
         lamp_polarizer_axis=np.array([1.0, 0.0, 0.0]),
         truth=truth,
         extra={"truth_specular": spec.astype(np.float32), "truth_diffuse": diff.astype(np.float32)},
-        meta={"source": "nearlight.synthetic.analytic_capture"},
+        meta={"source": "nearlight.generator.analytic.analytic_capture"},
     )

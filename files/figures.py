@@ -77,9 +77,9 @@ def panel_grid(
     ------
     UserError
         ``path`` cannot be written, or holds a file that is not a PNG image
-        (see :func:`nearlight.outputs.check_file_out`).
+        (see :func:`nearlight.files.outputs.check_file_out`).
     """
-    from nearlight.outputs import check_file_out
+    from nearlight.files.outputs import check_file_out
 
     path = check_file_out(path, "png")
     import matplotlib

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from nearlight.errors import UserError
-from nearlight.jsonable import jsonable
+from nearlight.files.jsonable import jsonable
 
 FORMAT = "nearlight-capture/1"
 JSON_NAME = "capture.json"
@@ -398,7 +398,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
         The capture directory to create.
     overwrite : bool, optional
         Replace an existing capture directory at ``path``. Only a capture
-        (:func:`nearlight.outputs.is_capture_dir`: exactly ``capture.json``
+        (:func:`nearlight.files.outputs.is_capture_dir`: exactly ``capture.json``
         and ``capture.exr``) is ever replaced; anything else at ``path`` is
         refused and left untouched.
 
@@ -415,7 +415,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
     """
     import OpenEXR
 
-    from nearlight.outputs import check_capture_out, is_capture_dir
+    from nearlight.files.outputs import check_capture_out, is_capture_dir
 
     path = check_capture_out(path, overwrite=overwrite)
     try:
