@@ -5,6 +5,6 @@ one reference implementation (reading, writing, the :class:`Capture` and
 :class:`Camera` records).
 """
 
-from nearlight.capture.format import EXR_NAME, FORMAT, JSON_NAME, Camera, Capture, capture_json, read_capture, write_capture
+from .format import EXR_NAME, FORMAT, JSON_NAME, Camera, Capture, capture_json, read_capture, write_capture
 
 __all__ = ["EXR_NAME", "FORMAT", "JSON_NAME", "Camera", "Capture", "capture_json", "read_capture", "write_capture"]

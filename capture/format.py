@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.errors import UserError
-from nearlight.files.jsonable import jsonable
+from ..errors import UserError
+from ..files.jsonable import jsonable
 
 FORMAT = "nearlight-capture/1"
 JSON_NAME = "capture.json"
@@ -415,7 +415,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
     """
     import OpenEXR
 
-    from nearlight.files.outputs import check_capture_out, is_capture_dir
+    from ..files.outputs import check_capture_out, is_capture_dir
 
     path = check_capture_out(path, overwrite=overwrite)
     try:

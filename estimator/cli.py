@@ -10,7 +10,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from nearlight.errors import UserError
+from ..errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -67,10 +67,10 @@ def _write_json(doc: dict, path: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nearlight.capture import read_capture
-    from nearlight.estimator.api import estimate, load_method
-    from nearlight.estimator.options import check_options
-    from nearlight.files.outputs import check_file_out
+    from ..capture import read_capture
+    from .api import estimate, load_method
+    from .options import check_options
+    from ..files.outputs import check_file_out
 
     # the method and its options are checked before anything is read or written
     options = check_options(load_method(args.method), parse_options(args.option), method=args.method)
@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"{est.method}: lamp ({pos}) m  ks ({ks})  sigma {est.sigma:.4f} rad  "
           f"[{sum(est.timings.values()):.2f} s]")
     if args.plot:
-        from nearlight.estimator.plot import plot_estimate
+        from .plot import plot_estimate
 
         plot_estimate(capture, est, args.plot)
     if args.json:

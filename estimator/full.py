@@ -17,16 +17,16 @@ import time
 
 import numpy as np
 
-from nearlight.capture import Capture
-from nearlight.errors import UserError
-from nearlight.estimator.fitting import log_regression, robust_fit
-from nearlight.estimator.observation import Observation
-from nearlight.estimator.options import Choice, Count, CountOrZero, Positive, forwards
-from nearlight.estimator.paper import RaySearch, stage_one
-from nearlight.estimator.separation import SEPARATION_METHODS
-from nearlight.estimator.pixels import fit_pixels
-from nearlight.estimator.result import Estimate
-from nearlight.physics.reflectance import shading_geometry, torrance_sparrow
+from ..capture import Capture
+from ..errors import UserError
+from .fitting import log_regression, robust_fit
+from .observation import Observation
+from .options import Choice, Count, CountOrZero, Positive, forwards
+from .paper import RaySearch, stage_one
+from .separation import SEPARATION_METHODS
+from .pixels import fit_pixels
+from .result import Estimate
+from ..physics.reflectance import shading_geometry, torrance_sparrow
 
 LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 

@@ -13,11 +13,11 @@ import dataclasses
 
 import numpy as np
 
-from nearlight.capture import Capture
-from nearlight.errors import UserError
-from nearlight.estimator.normals import normals_from_positions
-from nearlight.estimator.separation import separate
-from nearlight.physics.reflectance import normalize
+from ..capture import Capture
+from ..errors import UserError
+from .normals import normals_from_positions
+from .separation import separate
+from ..physics.reflectance import normalize
 
 #: Fewest specular pixels the regressions and fits accept.
 MIN_SPECULAR_PIXELS = 10

@@ -58,14 +58,14 @@ from collections.abc import Callable
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from nearlight.capture import Capture
-from nearlight.errors import UserError
-from nearlight.estimator.fitting import log_regression
-from nearlight.estimator.observation import Observation, observe
-from nearlight.estimator.options import Choice, Count, Fraction, Positive, forwards
-from nearlight.estimator.separation import SEPARATION_METHODS
-from nearlight.estimator.result import Estimate
-from nearlight.physics.reflectance import mirror_direction, shading_geometry
+from ..capture import Capture
+from ..errors import UserError
+from .fitting import log_regression
+from .observation import Observation, observe
+from .options import Choice, Count, Fraction, Positive, forwards
+from .separation import SEPARATION_METHODS
+from .result import Estimate
+from ..physics.reflectance import mirror_direction, shading_geometry
 
 #: Largest number of (t, pixel) pairs evaluated at once.
 _CHUNK = 2_000_000

@@ -12,8 +12,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from nearlight.errors import UserError
-from nearlight.physics.polarization import linear_stokes
+from ..errors import UserError
+from ..physics.polarization import linear_stokes
 
 
 def _maxmin(stack: np.ndarray, angles_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

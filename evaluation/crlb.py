@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.estimator.fitting import central_jacobian
-from nearlight.physics.reflectance import specular_radiance
+from ..estimator.fitting import central_jacobian
+from ..physics.reflectance import specular_radiance
 
 
 def crlb(model: Callable[[np.ndarray], np.ndarray], theta: Any, *, noise_var: Any, steps: Any) -> np.ndarray:
@@ -117,8 +117,8 @@ def camera_noise_variance(stack: np.ndarray, *, noise: Any) -> np.ndarray:
     -------
     ndarray, shape (K, H, W, 3)
     """
-    from nearlight.generator.noise import AUTO_EXPOSURE
-    from nearlight.generator.scene import CameraNoise
+    from ..generator.noise import AUTO_EXPOSURE
+    from ..generator.scene import CameraNoise
 
     if not isinstance(noise, CameraNoise):
         noise = CameraNoise.model_validate(dict(noise))

@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.files.dotted import get_dotted, set_dotted
-from nearlight.errors import UserError
-from nearlight.files.yamlfile import load_yaml_file
+from ..files.dotted import get_dotted, set_dotted
+from ..errors import UserError
+from ..files.yamlfile import load_yaml_file
 
 
 def convert_material(material: dict, model: str) -> dict:
@@ -153,7 +153,7 @@ class AnalyticRenderer(Renderer):
 
     def load_base(self, scene: str | dict, *, base_dir: Path, where: str) -> dict:
         """The base scene with every ``analytic_capture`` default filled in (so axes can change any of them)."""
-        from nearlight.generator.analytic import DEFAULT_BSDF
+        from ..generator.analytic import DEFAULT_BSDF
 
         doc = super().load_base(scene, base_dir=base_dir, where=where)
         self.validate(doc, where=where)
@@ -169,7 +169,7 @@ class AnalyticRenderer(Renderer):
         super().apply_axis(scene, name, value, where=where)
 
     def _params(self) -> dict[str, inspect.Parameter]:
-        from nearlight.generator.analytic import analytic_capture
+        from ..generator.analytic import analytic_capture
 
         return dict(inspect.signature(analytic_capture).parameters)
 
@@ -207,7 +207,7 @@ class AnalyticRenderer(Renderer):
                  "bool": "true or false", "str": "a name"}  # fmt: skip
 
     def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
-        from nearlight.generator.analytic import analytic_capture
+        from ..generator.analytic import analytic_capture
 
         return analytic_capture(**copy.deepcopy(scene))
 
@@ -246,7 +246,7 @@ class MitsubaRenderer(Renderer):
     prerender = True
 
     def _scene(self, scene: dict) -> Any:
-        from nearlight.generator import load_scene
+        from ..generator import load_scene
 
         return load_scene(copy.deepcopy(scene))
 
@@ -261,12 +261,12 @@ class MitsubaRenderer(Renderer):
 
     def render_key(self, scene: dict) -> str:
         """The generator's render hash (noise, seed and analyzer angles do not change a render)."""
-        from nearlight.generator.render import render_key
+        from ..generator.render import render_key
 
         return render_key(self._scene(scene))
 
     def prepare(self, scene: dict, *, cache_dir: Path | None) -> bool:
-        from nearlight.generator import render_clean
+        from ..generator import render_clean
 
         parsed = self._scene(scene)
         hit = cache_dir is not None and (cache_dir / f"{self.render_key(scene)}.npz").is_file()
@@ -274,7 +274,7 @@ class MitsubaRenderer(Renderer):
         return not hit
 
     def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
-        from nearlight.generator import render_clean
+        from ..generator import render_clean
 
         return render_clean(self._scene(scene), cache_dir=cache_dir, progress=False)
 

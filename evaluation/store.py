@@ -26,7 +26,7 @@ from typing import Any
 
 import pandas as pd
 
-from nearlight.errors import UserError
+from ..errors import UserError
 
 RESULTS = "results.parquet"
 MANIFEST = "sweep.json"
@@ -83,7 +83,7 @@ class ResultStore:
 
     def _record_environment(self) -> None:
         """Add this process's environment to ``environment.json`` unless an identical record is there."""
-        from nearlight.evaluation.environment import collect
+        from .environment import collect
 
         envs = read_environments(self.out)
         here = collect()

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.evaluation import metrics
+from . import metrics
 
 #: Metric columns (all "lower is better"), in table order, with their units.
 METRICS: dict[str, str] = {
@@ -64,7 +64,7 @@ def truth_estimate(capture: Any) -> Any:
     truth = capture.truth
     bsdf = truth["bsdf"]
     intensity = np.broadcast_to(np.asarray(truth.get("lamp_intensity", 2.0), dtype=float), (3,))
-    from nearlight.estimator import Estimate
+    from ..estimator import Estimate
 
     return Estimate(
         method="truth",
@@ -104,7 +104,7 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
     ks_true = truth_ks(bsdf)
     observed = capture.extra["truth_specular"]
     mask = capture.surface_mask
-    from nearlight.estimator import render_specular
+    from ..estimator import render_specular
 
     rendered = np.asarray(render_specular(capture, estimate), dtype=float)
     rmse = metrics.specular_rmse(rendered, observed, mask)
@@ -127,7 +127,7 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
 def run_method(capture: Any, method: str, options: Mapping[str, Any]) -> Any:
     """Run a built-in method by name or a ``module:function`` estimator on ``capture``, through
     :func:`nearlight.estimator.estimate` (options checked, result type checked, timings)."""
-    from nearlight.estimator import estimate
+    from ..estimator import estimate
 
     return estimate(capture, method=method, **options)
 
@@ -137,11 +137,11 @@ def _noisy(clean: Any, task: Mapping[str, Any]) -> Any:
     (the one seed rule of :mod:`nearlight.generator.noise`, as ``nearlight render`` with ``capture.seed``)."""
     capture = clean
     if task["noise"] is not None:
-        from nearlight.generator import add_camera_noise
+        from ..generator import add_camera_noise
 
         capture = add_camera_noise(capture, noise=task["noise"], seed=task["seed"])
     if task["range_noise"] > 0:
-        from nearlight.generator import add_range_noise
+        from ..generator import add_range_noise
 
         capture = add_range_noise(capture, sigma_m=task["range_noise"], seed=task["seed"])
     return capture
@@ -149,7 +149,7 @@ def _noisy(clean: Any, task: Mapping[str, Any]) -> Any:
 
 def _crlb(clean: Any, task: Mapping[str, Any]) -> dict[str, float]:
     """CRLB columns when they apply (TS truth, ideal mode, a stack, Gaussian-modelled camera noise)."""
-    from nearlight.evaluation.crlb import camera_noise_variance, specular_crlb
+    from .crlb import camera_noise_variance, specular_crlb
 
     bsdf = clean.truth["bsdf"]
     if not task["crlb"] or task["noise"] is None or clean.stack is None or bsdf.get("model") != "torrance_sparrow":

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.errors import UserError
+from ..errors import UserError
 
 
 def tonemap(img: np.ndarray, *, white: float | None = None, gamma: float = 2.2) -> np.ndarray:
@@ -79,7 +79,7 @@ def panel_grid(
         ``path`` cannot be written, or holds a file that is not a PNG image
         (see :func:`nearlight.files.outputs.check_file_out`).
     """
-    from nearlight.files.outputs import check_file_out
+    from .outputs import check_file_out
 
     path = check_file_out(path, "png")
     import matplotlib

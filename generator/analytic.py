@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.capture import Camera, Capture
-from nearlight.physics.reflectance import diffuse_radiance, normalize, specular_radiance, tangent_basis
+from ..capture import Camera, Capture
+from ..physics.reflectance import diffuse_radiance, normalize, specular_radiance, tangent_basis
 
 #: Default specular BSDF: the paper's simplified Torrance–Sparrow lobe.
 DEFAULT_BSDF = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1}

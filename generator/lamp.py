@@ -32,7 +32,7 @@ def register(mi: ModuleType) -> None:
     """Register ``nearlight_lamp`` with the active Mitsuba variant."""
     import drjit as dr
 
-    from nearlight.generator.bsdfs import zero_struct
+    from .bsdfs import zero_struct
 
     class PolarizedPointLamp(mi.Emitter):
         def __init__(self, props):

@@ -66,7 +66,7 @@ def planned_variant() -> tuple[str, str | None]:
     """
     forced = os.environ.get("NEARLIGHT_MITSUBA_VARIANT")
     if forced not in (None, "", LLVM_VARIANT, SCALAR_VARIANT):
-        from nearlight.errors import UserError
+        from ..errors import UserError
 
         raise UserError(f"NEARLIGHT_MITSUBA_VARIANT: expected {LLVM_VARIANT} or {SCALAR_VARIANT}, got {forced!r}")
     if forced == SCALAR_VARIANT:
@@ -100,7 +100,7 @@ def mitsuba() -> ModuleType:
             stacklevel=2,
         )
     mi.set_variant(variant)
-    from nearlight.generator import bsdfs, lamp
+    from . import bsdfs, lamp
 
     bsdfs.register(mi)
     lamp.register(mi)

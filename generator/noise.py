@@ -82,8 +82,8 @@ from typing import Any
 import numpy as np
 from scipy.special import ndtr
 
-from nearlight.capture import Capture
-from nearlight.generator.scene import CameraNoise
+from ..capture import Capture
+from .scene import CameraNoise
 
 #: Fraction of the full well the brightest clean pixel reaches with ``saturation: auto``.
 AUTO_EXPOSURE = 0.9

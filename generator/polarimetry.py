@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from nearlight.physics.polarization import analyzer_matrix, linear_stokes
+from ..physics.polarization import analyzer_matrix, linear_stokes
 
 
 class StokesFit(NamedTuple):

@@ -40,10 +40,10 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.capture import Camera, Capture
-from nearlight.errors import UserError
-from nearlight.generator.lamp import filter_axes
-from nearlight.generator.scene import MitsubaMaterial, Scene
+from ..capture import Camera, Capture
+from ..errors import UserError
+from .lamp import filter_axes
+from .scene import MitsubaMaterial, Scene
 
 #: Bump when a change alters rendered values (invalidates caches).
 RENDER_VERSION = 1
@@ -110,7 +110,7 @@ def bsdf_dict(scene: Scene, *, part: str, channel: int | None) -> dict:
 
 def object_dicts(mi: ModuleType, scene: Scene, bsdf: dict, scratch: Path) -> dict[str, dict]:
     """The object's shapes with ``bsdf``, transforms converted for Mitsuba."""
-    from nearlight.generator.shapes import BUILDERS
+    from .shapes import BUILDERS
 
     shapes = BUILDERS[scene.object.type](scene.object, bsdf, scratch)
     return {name: {**d, "to_world": _transform(mi, d["to_world"])} for name, d in shapes.items()}
@@ -131,7 +131,7 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
     stokes : bool
         Wrap the integrator in Mitsuba's ``stokes`` (for ``mi.render``).
     """
-    from nearlight.generator import lamp
+    from . import lamp
 
     intensity = 1.0 if channel is None else scene.lamp.intensity[channel]
     facing = scene.lamp_facing
@@ -192,7 +192,7 @@ def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=N
     """
     import drjit as dr
 
-    from nearlight.generator.llvm import is_scalar
+    from .llvm import is_scalar
 
     sensor = mscene.sensors()[0]
     if is_scalar(mi):
@@ -253,7 +253,7 @@ def _trace_stokes_scalar(mi: ModuleType, mscene: Any, *, spp: int, seed: int, ti
 
 def surface(mi: ModuleType, mscene: Any) -> tuple[np.ndarray, np.ndarray]:
     """Exact ``P`` and ``N`` ``[H, W, 3]`` at pixel centres (NaN where no surface)."""
-    from nearlight.generator.llvm import is_scalar
+    from .llvm import is_scalar
 
     sensor = mscene.sensors()[0]
     w, h = sensor.film().size()
@@ -508,7 +508,7 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
     """Run Mitsuba: ``P``, ``N``, ``to_world`` and Stokes ``[3, H, W, 3]`` per part."""
     from tqdm import tqdm
 
-    from nearlight.generator.llvm import mitsuba
+    from .llvm import mitsuba
 
     mi = mitsuba()
     check_mitsuba_bsdf(mi, scene)
@@ -546,7 +546,7 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
 
 
 def _check_geometry(mi: ModuleType, scene: Scene, geometry: Any, P: np.ndarray) -> None:
-    from nearlight.generator.shapes import CLOSED
+    from .shapes import CLOSED
 
     if not np.isfinite(P).all(axis=-1).any():
         raise UserError(

@@ -28,9 +28,9 @@ from pydantic import (
     model_validator,
 )
 
-from nearlight.files.dotted import set_dotted
-from nearlight.errors import UserError
-from nearlight.files.yamlfile import load_yaml_file
+from ..files.dotted import set_dotted
+from ..errors import UserError
+from ..files.yamlfile import load_yaml_file
 
 PositiveFloat = Annotated[float, Field(gt=0)]
 Vec3 = tuple[float, float, float]

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from nearlight.capture import Capture, read_capture
-from nearlight.files.figures import panel_grid, tonemap
-from nearlight.generator.polarimetry import fit_stokes
+from ..capture import Capture, read_capture
+from ..files.figures import panel_grid, tonemap
+from .polarimetry import fit_stokes
 
 
 def _white(img: np.ndarray) -> float:

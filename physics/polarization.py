@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.errors import UserError
+from ..errors import UserError
 
 
 def analyzer_matrix(angles_deg: Any) -> np.ndarray:
