@@ -65,7 +65,7 @@ from .options import Choice, Count, Fraction, Positive
 from .separation import SEPARATION_METHODS
 from .pixels import fit_pixels
 from .result import Estimate
-from ..physics.reflectance import mirror_direction, normalize, tangent_basis, torrance_sparrow
+from ..physics.reflectance import mirror_direction, normalize, tangent_basis, torrance_sparrow, torrance_sparrow_lobe
 
 #: Candidates whose profiled cost is within this fraction of Σ I² of the
 #: lowest are tied. A 1-ulp float32 change of every pixel moves a cost by at
@@ -237,7 +237,7 @@ class DistantModel:
         alpha = np.arccos(np.clip(self.N @ h, -1.0, 1.0))
         lit = (self.N @ l > 0) & (self.cos_r > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            g = np.where(lit, np.exp(-(alpha**2) / (2.0 * x[5] ** 2)) / self.cos_r, 0.0)
+            g = np.where(lit, torrance_sparrow_lobe(alpha, x[5]) / self.cos_r, 0.0)
         return g, alpha, h, l
 
     def residuals(self, x: np.ndarray) -> np.ndarray:

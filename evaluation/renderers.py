@@ -24,13 +24,14 @@ import numpy as np
 from ..files.dotted import get_dotted, set_dotted
 from ..errors import UserError
 from ..files.yamlfile import load_yaml_file
+from ..physics.reflectance import torrance_sparrow_from_ward, ward_alpha_from_ts, ward_from_torrance_sparrow
 
 
 def convert_material(material: dict, model: str) -> dict:
     """Switch a Torrance–Sparrow material to Ward or back, keeping the lobe's width and peak.
 
-    ``alpha = sqrt(2)·sigma`` (``exp(-tan²α/α²) ≈ exp(-α²/2σ²)`` for small α)
-    and ``rho_s = 4π alpha² ks`` (equal peak radiance at normal incidence);
+    ``alpha = sqrt(2)·sigma`` and ``rho_s = 4π alpha² ks``
+    (:func:`nearlight.physics.reflectance.ward_from_torrance_sparrow` and its inverse);
     other keys (kd, polarization, eta) are kept.
     """
     old = material.get("model", "torrance_sparrow")
@@ -39,12 +40,12 @@ def convert_material(material: dict, model: str) -> dict:
         return out
     if (old, model) == ("torrance_sparrow", "ward"):
         sigma, ks = float(out.pop("sigma")), np.asarray(out.pop("ks"), dtype=float)
-        out["alpha"] = math.sqrt(2.0) * sigma
-        out["rho_s"] = (4.0 * math.pi * out["alpha"] ** 2 * ks).tolist()
+        out["alpha"], rho_s = ward_from_torrance_sparrow(sigma, ks)
+        out["rho_s"] = rho_s.tolist()
     elif (old, model) == ("ward", "torrance_sparrow"):
         alpha, rho = float(out.pop("alpha")), np.asarray(out.pop("rho_s"), dtype=float)
-        out["sigma"] = alpha / math.sqrt(2.0)
-        out["ks"] = (rho / (4.0 * math.pi * alpha**2)).tolist()
+        out["sigma"], ks = torrance_sparrow_from_ward(alpha, rho)
+        out["ks"] = ks.tolist()
     else:
         raise UserError(f"cannot convert material model {old!r} to {model!r}: give the material as a mapping")
     return out
@@ -108,7 +109,7 @@ class Renderer:
             if model == "torrance_sparrow":
                 set_dotted(scene, f"{self.material_key}.sigma", float(value), where=where)
             elif model == "ward":
-                set_dotted(scene, f"{self.material_key}.alpha", math.sqrt(2.0) * float(value), where=where)
+                set_dotted(scene, f"{self.material_key}.alpha", ward_alpha_from_ts(float(value)), where=where)
             else:
                 raise UserError(f"{where}: material model {model!r} has no roughness key; use a dotted scene key")
         elif name == "analyzer_angles":

@@ -39,6 +39,7 @@ from ..capture import Capture
 from ..errors import UserError
 from ..files.figures import panel_grid, save_png, tonemap
 from ..files.jsonable import jsonable
+from ..physics.polarization import through_polarizer
 
 #: The paper's own numbers, quoted with their section (never computed here).
 PAPER: dict[str, dict[str, Any]] = {
@@ -182,7 +183,7 @@ def _method_row(capture: Capture, est: Any) -> dict[str, Any]:
     (``I_lamp / 2`` behind the ideal polarizer) so that it reads beside the
     truth and the paper's Ks**.
     """
-    reaching = np.asarray(capture.truth["lamp_intensity"], dtype=float) / 2.0
+    reaching = through_polarizer(capture.truth["lamp_intensity"])
     return {
         "lamp_position": [float(v) for v in est.lamp_position],
         "sigma": float(est.sigma),

@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from ..physics.polarization import through_polarizer
+from ..physics.reflectance import ts_sigma_from_ward
 from . import metrics
 
 #: Metric columns (all "lower is better"), in table order, with their units.
@@ -42,7 +44,7 @@ def truth_sigma(bsdf: Mapping[str, Any]) -> float:
     if model == "torrance_sparrow":
         return float(bsdf["sigma"])
     if model == "ward":
-        return float(bsdf["alpha"]) / math.sqrt(2.0)
+        return ts_sigma_from_ward(float(bsdf["alpha"]))
     return math.nan
 
 
@@ -69,7 +71,7 @@ def truth_estimate(capture: Any) -> Any:
     return Estimate(
         method="truth",
         lamp_position=np.asarray(truth["lamp_position"], dtype=float),
-        ks=truth_ks(bsdf) * intensity / 2.0,
+        ks=truth_ks(bsdf) * through_polarizer(intensity),
         sigma=truth_sigma(bsdf),
     )
 

@@ -42,6 +42,7 @@ import numpy as np
 
 from ..capture import Camera, Capture
 from ..errors import UserError
+from ..physics.polarization import analyzer_stack
 from .lamp import filter_axes
 from .scene import MitsubaMaterial, Scene
 
@@ -555,22 +556,6 @@ def _check_geometry(mi: ModuleType, scene: Scene, geometry: Any, P: np.ndarray) 
         )
     if scene.object.type in CLOSED and lamp_inside(mi, geometry, scene.lamp.position):
         raise UserError(f"{scene.source}: lamp.position: {list(scene.lamp.position)} is inside the object")
-
-
-def analyzer_stack(stokes: np.ndarray, angles_deg: Any) -> np.ndarray:
-    """Ideal-analyzer images ``½ (S0 + S1 cos 2θ + S2 sin 2θ)``.
-
-    Parameters
-    ----------
-    stokes : ndarray, shape (3, H, W, C)
-    angles_deg : array_like, shape (K,)
-
-    Returns
-    -------
-    ndarray, shape (K, H, W, C)
-    """
-    t = np.radians(np.asarray(angles_deg, float))[:, None, None, None]
-    return 0.5 * (stokes[0] + stokes[1] * np.cos(2 * t) + stokes[2] * np.sin(2 * t))
 
 
 def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Capture:

@@ -7,7 +7,8 @@ import pytest
 
 from nearlight.capture import read_capture, write_capture
 from nearlight.physics.reflectance import diffuse_radiance, specular_radiance
-from nearlight.generator.analytic import analytic_capture, camera_rays, look_at_matrix
+from nearlight.generator.analytic import analytic_capture
+from nearlight.physics.camera import camera_rays, look_at_matrix
 
 
 def test_camera_follows_mitsuba_look_at_and_image_orientation():

@@ -10,7 +10,8 @@ from scipy import special, stats
 
 from nearlight.capture import Camera, Capture, read_capture
 from nearlight.generator import add_camera_noise, add_range_noise
-from nearlight.generator.noise import AUTO_EXPOSURE, EXACT_POISSON_BELOW, noise_rngs, shot_electrons
+from nearlight.generator.noise import EXACT_POISSON_BELOW, noise_rngs, shot_electrons
+from nearlight.physics.camera import AUTO_EXPOSURE
 from nearlight.generator.analytic import analytic_capture
 
 ROOT = Path(__file__).resolve().parents[1]
