@@ -3,7 +3,7 @@
 A capture is a directory holding ``capture.json`` (camera, analyzer angles,
 optional ground truth) and ``capture.exr`` (analyzer stack or separated
 specular image, range image ``P``, optional normals ``N``, extras). The format
-is specified in the README ("Capture format v1"); this module is its reference
+is specified in ``docs/capture-format.md``; this module is its reference
 implementation. The generator writes captures with :func:`write_capture`, the
 estimator reads them with :func:`read_capture`, and so does anything reading a
 real rig's captures.

@@ -4,7 +4,7 @@ The paper's first stage puts the lamp on the ray from the peak pixel along
 the mirror direction, but the peak pixel is not the mirror point: the
 ``1/cos θr`` and ``1/r²`` factors move the intensity peak away from α = 0,
 and pixels quantise it. So ``full`` starts from ``paper-init`` and fits the
-closed-form specular radiance of DESIGN.md,
+closed-form specular radiance of docs/physics.md,
 ``I_s = Ks / (cos θr r²) · exp(−α² / 2σ²)`` (``I_lamp = 1``: Ks absorbs the
 lamp intensity), to the specular image over all seven parameters
 ``(x, y, z, Ks_R, Ks_G, Ks_B, σ)``, with a robust loss and a sandwich

@@ -10,7 +10,7 @@ rendering and share the render. A configuration without camera or range noise
 is deterministic: it runs once, with the first seed (more seeds would repeat
 the same numbers).
 
-See the README section "Sweep files" for the keys; :data:`AXES` documents each axis.
+See ``docs/sweep-files.md`` for the keys; :data:`AXES` documents each axis.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ Two independent routes, which the tests compare:
   works with ``path``.
 - :func:`polarizer_sheet`: Mitsuba's unpolarized ``point`` emitter with a
   geometric ``polarizer`` rectangle 1 mm in front of it; shadow rays only pass
-  a sheet with the ``volpath`` integrator (DESIGN.md).
+  a sheet with the ``volpath`` integrator (docs/physics.md, "Facts measured").
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Import Mitsuba 3 with a working Dr.Jit LLVM backend, or fall back to scalar.
 
 Dr.Jit's LLVM backend aborts (uncatchably) with Debian's default libLLVM 14/15;
-LLVM >= 17 works (DESIGN.md, "Facts measured"). :func:`mitsuba` points
+LLVM >= 17 works (docs/physics.md, "Facts measured"). :func:`mitsuba` points
 ``DRJIT_LIBLLVM_PATH`` at such a library *before* the first ``import mitsuba``
 when the user has not set it, and selects the variant the generator renders
 with:

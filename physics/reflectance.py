@@ -1,9 +1,10 @@
 """Closed-form reflection models and shading geometry (numpy only).
 
-One implementation of the physics conventions of DESIGN.md, used three times:
-by the generator's tests (rendered radiance against the closed form), by the
-estimator (its forward model), and by the evaluation (re-rendering an estimate,
-Cramér–Rao bounds). Lengths in metres, angles in radians.
+One implementation of the reflectance conventions of ``docs/physics.md``, used
+by every stage: the analytic generator (closed-form captures), the generator's
+tests (rendered radiance against the closed form), the estimator (its forward
+model) and the evaluation (re-rendering an estimate, Cramér–Rao bounds).
+Lengths in metres, angles in radians. Numpy only; imports no pipeline stage.
 
 BSDF parameter dicts are those of ``capture.json``'s ``truth.bsdf``:
 ``{"model": "torrance_sparrow", "ks": [r, g, b], "sigma": s}`` or
