@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
 from ..errors import UserError
+from ..files.atomic import write_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -48,24 +47,6 @@ def parse_options(pairs: list[str]) -> dict[str, Any]:
     return out
 
 
-def _write_json(doc: dict, path: Path) -> None:
-    """Write atomically: a temporary sibling renamed into place."""
-    tmp = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-        with os.fdopen(fd, "w") as f:
-            json.dump(doc, f, indent=2)
-            f.write("\n")
-        os.replace(tmp, path)
-        tmp = None
-    except OSError as exc:
-        raise UserError(f"{path}: cannot write the estimate ({exc.strerror or exc})") from None
-    finally:
-        if tmp is not None:
-            Path(tmp).unlink(missing_ok=True)
-
-
 def run(args: argparse.Namespace) -> int:
     from ..capture import read_capture
     from .api import estimate, load_method
@@ -93,6 +74,6 @@ def run(args: argparse.Namespace) -> int:
 
         plot_estimate(capture, est, args.plot)
     if args.json:
-        _write_json(est.to_dict(), Path(args.json))
+        write_json(Path(args.json), est.to_dict(), what="the estimate")
     sys.stdout.flush()
     return 0

@@ -38,7 +38,6 @@ regression (``missing``).
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 from collections.abc import Sequence
@@ -49,7 +48,8 @@ import numpy as np
 import pandas as pd
 
 from ..errors import UserError
-from .store import atomic_write, read_environments, read_manifest, read_results
+from ..files.atomic import write_json
+from .store import read_environments, read_manifest, read_results
 from .tasks import INFO_COLUMNS, METRICS
 
 #: Metrics compared (``runtime_s`` only on request; ``specular_rmse`` is in radiance units whose scale
@@ -339,13 +339,5 @@ def compare_dirs(
         }  # fmt: skip
         from ..files.jsonable import jsonable
 
-        _write_json(Path(json_out), jsonable(doc))
+        write_json(json_out, jsonable(doc))
     return checks, lines
-
-
-def _write_json(path: Path, doc: Any) -> None:
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(doc, indent=2) + "\n"))
-    except OSError as exc:
-        raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None

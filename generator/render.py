@@ -42,6 +42,7 @@ import numpy as np
 
 from ..capture import Camera, Capture
 from ..errors import UserError
+from ..files.atomic import atomic_write
 from ..physics.polarization import analyzer_stack
 from .lamp import filter_axes
 from .scene import MitsubaMaterial, Scene
@@ -434,14 +435,7 @@ def _cache_entry_ok(arrays: dict[str, np.ndarray], scene: Scene) -> bool:
 
 def _save_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(path, lambda tmp: np.savez(tmp, **arrays), suffix=".npz")  # np.savez adds .npz to other names
 
 
 #: Scratch folders of renders (mesh files for Mitsuba) in the temporary folder:
