@@ -3,7 +3,7 @@
 A scene has five sections: ``camera``, ``object``, ``material``, ``lamp`` and
 ``capture``. Positions are in metres, angles in degrees (the file is what a
 human types); colours are ``[r, g, b]``. ``Scene.model_dump(mode="json")``
-loads back to the same scene.
+loads back to the same scene. Every key is specified in ``docs/scene-files.md``.
 """
 
 from __future__ import annotations
