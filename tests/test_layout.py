@@ -86,6 +86,8 @@ def test_packages_are_folders_under_the_root():
     assert PYPROJECT["package-dir"] == {"nearlight": "."}
     for package in PYPROJECT["packages"]:
         assert (ROOT.joinpath(*package.split(".")[1:]) / "__init__.py").is_file(), package
+    # the root's own modules are the package's face and its command: nothing else at the root ships
+    assert sorted(p.name for p in ROOT.glob("*.py")) == ["__init__.py", "__main__.py", "cli.py", "errors.py"]
     # and every folder of the root that holds Python modules is a listed package or outside it on purpose
     listed = {ROOT.joinpath(*p.split(".")[1:]) for p in PYPROJECT["packages"]}
     for folder in ROOT.iterdir():
