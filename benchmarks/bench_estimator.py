@@ -1,6 +1,6 @@
 """Seconds per capture for each estimator method, and the t search's speed-up.
 
-Builds noise-free analytic captures (``nearlight.synthetic``: board and
+Builds noise-free analytic captures (``nearlight.generator.analytic``: board and
 sphere, 8 analyzer angles) at 640×480 by default, times every method
 (best of ``--repeat``), and compares the default fast t search of the
 paper's first stage with the plain per-step scan of the same E_p(t)
@@ -25,7 +25,7 @@ import numpy as np
 from nearlight.estimator import METHODS, estimate
 from nearlight.estimator.observation import observe
 from nearlight.estimator.paper import RaySearch, fast_search, scan_search, t_search_defaults
-from nearlight.synthetic import analytic_capture
+from nearlight.generator.analytic import analytic_capture
 
 SCENES = {
     "board": {"shape": "board", "bsdf": {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1}},

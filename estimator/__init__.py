@@ -7,9 +7,9 @@ Public API: :func:`estimate`, :class:`Estimate`, :data:`METHODS`,
 :func:`load_method`, :func:`render_specular`, :func:`separate`.
 """
 
-from nearlight.estimator.api import METHODS, estimate, load_method
-from nearlight.estimator.resynth import render_specular
-from nearlight.estimator.result import Estimate
-from nearlight.estimator.separation import separate
+from .api import METHODS, estimate, load_method
+from .resynth import render_specular
+from .result import Estimate
+from .separation import separate
 
 __all__ = ["METHODS", "Estimate", "estimate", "load_method", "render_specular", "separate"]

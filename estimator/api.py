@@ -8,13 +8,13 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from nearlight.capture import Capture, read_capture
-from nearlight.errors import UserError
-from nearlight.estimator.distant import distant_estimate
-from nearlight.estimator.full import full_estimate
-from nearlight.estimator.options import check_options
-from nearlight.estimator.paper import initial_estimate, paper_estimate
-from nearlight.estimator.result import Estimate
+from ..capture import Capture, read_capture
+from ..errors import UserError
+from .distant import distant_estimate
+from .full import full_estimate
+from .options import check_options
+from .paper import initial_estimate, paper_estimate
+from .result import Estimate
 
 #: Built-in methods: ``fn(capture, **options) -> Estimate``.
 METHODS: dict[str, Callable[..., Estimate]] = {

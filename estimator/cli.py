@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
-from nearlight.errors import UserError
+from ..errors import UserError
+from ..files.atomic import write_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -48,29 +47,11 @@ def parse_options(pairs: list[str]) -> dict[str, Any]:
     return out
 
 
-def _write_json(doc: dict, path: Path) -> None:
-    """Write atomically: a temporary sibling renamed into place."""
-    tmp = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-        with os.fdopen(fd, "w") as f:
-            json.dump(doc, f, indent=2)
-            f.write("\n")
-        os.replace(tmp, path)
-        tmp = None
-    except OSError as exc:
-        raise UserError(f"{path}: cannot write the estimate ({exc.strerror or exc})") from None
-    finally:
-        if tmp is not None:
-            Path(tmp).unlink(missing_ok=True)
-
-
 def run(args: argparse.Namespace) -> int:
-    from nearlight.capture import read_capture
-    from nearlight.estimator.api import estimate, load_method
-    from nearlight.estimator.options import check_options
-    from nearlight.outputs import check_file_out
+    from ..capture import read_capture
+    from .api import estimate, load_method
+    from .options import check_options
+    from ..files.outputs import check_file_out
 
     # the method and its options are checked before anything is read or written
     options = check_options(load_method(args.method), parse_options(args.option), method=args.method)
@@ -89,10 +70,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"{est.method}: lamp ({pos}) m  ks ({ks})  sigma {est.sigma:.4f} rad  "
           f"[{sum(est.timings.values()):.2f} s]")
     if args.plot:
-        from nearlight.estimator.plot import plot_estimate
+        from .plot import plot_estimate
 
         plot_estimate(capture, est, args.plot)
     if args.json:
-        _write_json(est.to_dict(), Path(args.json))
+        write_json(Path(args.json), est.to_dict(), what="the estimate")
     sys.stdout.flush()
     return 0

@@ -56,16 +56,16 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from nearlight.capture import Capture
-from nearlight.errors import UserError
-from nearlight.estimator.fitting import log_regression, robust_fit
-from nearlight.estimator.full import LOSSES
-from nearlight.estimator.observation import Observation, observe
-from nearlight.estimator.options import Choice, Count, Fraction, Positive
-from nearlight.estimator.separation import SEPARATION_METHODS
-from nearlight.estimator.pixels import fit_pixels
-from nearlight.estimator.result import Estimate
-from nearlight.reflectance import mirror_direction, normalize, tangent_basis, torrance_sparrow
+from ..capture import Capture
+from ..errors import UserError
+from .fitting import log_regression, robust_fit
+from .full import LOSSES
+from .observation import Observation, observe
+from .options import Choice, Count, Fraction, Positive
+from .separation import SEPARATION_METHODS
+from .pixels import fit_pixels
+from .result import Estimate
+from ..physics.reflectance import mirror_direction, normalize, tangent_basis, torrance_sparrow, torrance_sparrow_lobe
 
 #: Candidates whose profiled cost is within this fraction of Σ I² of the
 #: lowest are tied. A 1-ulp float32 change of every pixel moves a cost by at
@@ -237,7 +237,7 @@ class DistantModel:
         alpha = np.arccos(np.clip(self.N @ h, -1.0, 1.0))
         lit = (self.N @ l > 0) & (self.cos_r > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            g = np.where(lit, np.exp(-(alpha**2) / (2.0 * x[5] ** 2)) / self.cos_r, 0.0)
+            g = np.where(lit, torrance_sparrow_lobe(alpha, x[5]) / self.cos_r, 0.0)
         return g, alpha, h, l
 
     def residuals(self, x: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
-from nearlight.errors import UserError
+from ..errors import UserError
 
 
 def log_regression(X: np.ndarray, Y: np.ndarray, *, where: str = "specular") -> tuple[np.ndarray, float, np.ndarray]:

@@ -4,7 +4,7 @@ The paper's first stage puts the lamp on the ray from the peak pixel along
 the mirror direction, but the peak pixel is not the mirror point: the
 ``1/cos θr`` and ``1/r²`` factors move the intensity peak away from α = 0,
 and pixels quantise it. So ``full`` starts from ``paper-init`` and fits the
-closed-form specular radiance of DESIGN.md,
+closed-form specular radiance of docs/physics.md,
 ``I_s = Ks / (cos θr r²) · exp(−α² / 2σ²)`` (``I_lamp = 1``: Ks absorbs the
 lamp intensity), to the specular image over all seven parameters
 ``(x, y, z, Ks_R, Ks_G, Ks_B, σ)``, with a robust loss and a sandwich
@@ -17,22 +17,22 @@ import time
 
 import numpy as np
 
-from nearlight.capture import Capture
-from nearlight.errors import UserError
-from nearlight.estimator.fitting import log_regression, robust_fit
-from nearlight.estimator.observation import Observation
-from nearlight.estimator.options import Choice, Count, CountOrZero, Positive, forwards
-from nearlight.estimator.paper import RaySearch, stage_one
-from nearlight.estimator.separation import SEPARATION_METHODS
-from nearlight.estimator.pixels import fit_pixels
-from nearlight.estimator.result import Estimate
-from nearlight.reflectance import shading_geometry, torrance_sparrow
+from ..capture import Capture
+from ..errors import UserError
+from .fitting import log_regression, robust_fit
+from .observation import Observation
+from .options import Choice, Count, CountOrZero, Positive, forwards
+from .paper import RaySearch, stage_one
+from .separation import SEPARATION_METHODS
+from .pixels import fit_pixels
+from .result import Estimate
+from ..physics.reflectance import shading_geometry, torrance_sparrow
 
 LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 
 
 def ts_bsdf(ks: np.ndarray, sigma: float) -> dict:
-    """A Torrance–Sparrow BSDF dict for :mod:`nearlight.reflectance`."""
+    """A Torrance–Sparrow BSDF dict for :mod:`nearlight.physics.reflectance`."""
     return {"model": "torrance_sparrow", "ks": ks, "sigma": sigma}
 
 

@@ -13,11 +13,12 @@ import dataclasses
 
 import numpy as np
 
-from nearlight.capture import Capture
-from nearlight.errors import UserError
-from nearlight.estimator.normals import normals_from_positions
-from nearlight.estimator.separation import separate
-from nearlight.reflectance import normalize
+from ..capture import Capture
+from ..errors import UserError
+from .normals import normals_from_positions
+from .separation import separate
+from ..physics.camera import project
+from ..physics.reflectance import normalize
 
 #: Fewest specular pixels the regressions and fits accept.
 MIN_SPECULAR_PIXELS = 10
@@ -124,14 +125,8 @@ def pixel_ray_error(capture: Capture) -> tuple[np.ndarray, np.ndarray]:
     behind = np.zeros((H, W), bool)
     cam = capture.camera
     if cam.to_world is not None and cam.fov_x_deg is not None:
-        R = np.asarray(cam.to_world, dtype=float)[:3, :3]
-        local = d @ R  # R^T d, row-wise
-        z = local[..., 2]
+        col, row, z = project(d, cam.to_world, W, H, cam.fov_x_deg)
         behind = finite & ~(z > 0)
-        t = np.tan(np.radians(cam.fov_x_deg) / 2)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            col = (1 - local[..., 0] / z / t) * W / 2
-            row = (1 - local[..., 1] / z / (t * H / W)) * H / 2
         error = np.where(finite & ~behind, np.hypot(col - jj, row - ii), np.nan)
         return error, behind
     idx = np.flatnonzero(finite)

@@ -23,7 +23,7 @@ from typing import Annotated, Any
 
 from pydantic import AfterValidator, Field, TypeAdapter, ValidationError
 
-from nearlight.errors import UserError
+from ..errors import UserError
 
 #: A finite number > 0 (distances, steps, scales), in the option's units.
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]

@@ -11,7 +11,7 @@ of the correlation coefficients; Ks and σ come from the regression line
 
 Eq. 8 as printed, ``N + (N, V) N − V``, is the mirror direction only when
 ``N·V = 1``; we use the exact mirror ``2 (N·V) N − V``
-(:func:`nearlight.reflectance.mirror_direction`).
+(:func:`nearlight.physics.reflectance.mirror_direction`).
 
 Stage 2 (§3.4, ``paper``): alternating minimisation (AM) of eq. 18,
 ``E_energy(Ks, σ, t) = Σ_m Σ_k (E_k,m − Ks,m / cos θr,k · exp(−α_k(t)² / 2σ²))²``
@@ -58,14 +58,14 @@ from collections.abc import Callable
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from nearlight.capture import Capture
-from nearlight.errors import UserError
-from nearlight.estimator.fitting import log_regression
-from nearlight.estimator.observation import Observation, observe
-from nearlight.estimator.options import Choice, Count, Fraction, Positive, forwards
-from nearlight.estimator.separation import SEPARATION_METHODS
-from nearlight.estimator.result import Estimate
-from nearlight.reflectance import mirror_direction, shading_geometry
+from ..capture import Capture
+from ..errors import UserError
+from .fitting import log_regression
+from .observation import Observation, observe
+from .options import Choice, Count, Fraction, Positive, forwards
+from .separation import SEPARATION_METHODS
+from .result import Estimate
+from ..physics.reflectance import mirror_direction, shading_geometry
 
 #: Largest number of (t, pixel) pairs evaluated at once.
 _CHUNK = 2_000_000

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from nearlight.errors import UserError
-from nearlight.estimator.observation import Observation
+from ..errors import UserError
+from .observation import Observation
 
 
 def fit_pixels(obs: Observation, *, max_pixels: int, saturation: float | None) -> np.ndarray:

@@ -7,12 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
-from nearlight.capture import Capture
-from nearlight.estimator.observation import specular_image
-from nearlight.estimator.resynth import render_specular
-from nearlight.estimator.result import Estimate
-from nearlight.figures import save_png, tonemap
-from nearlight.outputs import check_file_out
+from ..capture import Capture
+from .observation import specular_image
+from .resynth import render_specular
+from .result import Estimate
+from ..files.figures import save_png, tonemap
+from ..files.outputs import check_file_out
 
 
 def plot_estimate(capture: Capture, estimate: Estimate, path: str | os.PathLike) -> Path:

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.jsonable import jsonable
+from ..files.jsonable import jsonable
 
 
 @dataclasses.dataclass

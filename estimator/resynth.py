@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from nearlight.capture import Capture
-from nearlight.errors import UserError
-from nearlight.estimator.distant import distant_specular
-from nearlight.estimator.observation import surface_geometry
-from nearlight.estimator.result import Estimate
-from nearlight.reflectance import specular_radiance
+from ..capture import Capture
+from ..errors import UserError
+from .distant import distant_specular
+from .observation import surface_geometry
+from .result import Estimate
+from ..physics.reflectance import specular_radiance
 
 
 def _point(P, N, camera, estimate: Estimate) -> np.ndarray:

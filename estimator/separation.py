@@ -3,7 +3,8 @@
 Through an ideal analyzer at angle θ a pixel sees
 ``I(θ) = Id/2 + Is·cos²(θ − β) = a + b cos 2θ + c sin 2θ`` with
 ``a = (Id + Is)/2`` and ``sqrt(b² + c²) = Is/2``. So ``Imax = a + Is/2`` and
-``Imin = Id/2``: specular = Imax − Imin, diffuse = 2·Imin (DESIGN.md).
+``Imin = Id/2``: specular = Imax − Imin, diffuse = 2·Imin (``docs/physics.md``; the
+formulas are :mod:`nearlight.physics.polarization`'s).
 """
 
 from __future__ import annotations
@@ -12,8 +13,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from nearlight.errors import UserError
-from nearlight.stokes import linear_stokes
+from ..errors import UserError
+from ..physics.polarization import linear_stokes, separate_extrema, separate_stokes
 
 
 def _maxmin(stack: np.ndarray, angles_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -25,8 +26,7 @@ def _maxmin(stack: np.ndarray, angles_deg: np.ndarray) -> tuple[np.ndarray, np.n
     """
     if len(np.unique(np.mod(angles_deg, 180.0))) < 2:
         raise UserError("analyzer_angles_deg: maxmin separation needs at least 2 distinct angles (mod 180°)")
-    imax, imin = stack.max(axis=0), stack.min(axis=0)
-    return imax - imin, 2.0 * imin
+    return separate_extrema(stack.max(axis=0), stack.min(axis=0))
 
 
 def _coefficients(stack: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:
@@ -35,14 +35,12 @@ def _coefficients(stack: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:
 
 
 def _fit(stack: np.ndarray, angles_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares fit per pixel (every angle, ≥ 3); amplitude ``sqrt(b² + c²) = Is/2``.
+    """Least-squares Stokes fit per pixel (every angle, ≥ 3); specular ``sqrt(S1² + S2²) = Is``.
 
     The amplitude of noisy coefficients is biased upwards (Rician): where Is
     is small against the noise, specular comes out positive on average.
     """
-    a, b, c = _coefficients(stack, angles_deg)
-    amp = np.hypot(b, c)
-    return 2.0 * amp, 2.0 * (a - amp)
+    return separate_stokes(*linear_stokes(stack, angles_deg))
 
 
 def _projected(stack: np.ndarray, angles_deg: np.ndarray, *, size: int = 5) -> tuple[np.ndarray, np.ndarray]:

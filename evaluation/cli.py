@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from nearlight.errors import UserError
+from ..errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -57,14 +57,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from nearlight.evaluation.engine import run_sweep
-    from nearlight.evaluation.sweep import load_sweep
+    from .engine import run_sweep
+    from .sweep import load_sweep
 
     if args.workers < 1:
         raise UserError(f"--workers: expected a positive integer, got {args.workers}")
     if args.scheduler is not None:
         check_scheduler(args.scheduler)
-    from nearlight.outputs import check_folder
+    from ..files.outputs import check_folder
 
     check_folder(args.out, what="results folder")
     sweep = load_sweep(args.sweep)
@@ -93,7 +93,7 @@ def _sweep(args: argparse.Namespace) -> int:
 
 def _check_resumable(out: Path, sweep: Any) -> None:
     """Before anything is printed or run: a results folder must hold this sweep (or none)."""
-    from nearlight.evaluation.store import MANIFEST, read_manifest
+    from .store import MANIFEST, read_manifest
 
     if (out / MANIFEST).exists():
         old = read_manifest(out)
@@ -117,7 +117,7 @@ def check_scheduler(address: str) -> str:
 
 
 def _report(args: argparse.Namespace) -> int:
-    from nearlight.evaluation.report import write_report
+    from .report import write_report
 
     folder = write_report(args.dir, out=args.out)
     print(f"report written to {folder}", file=sys.stderr)
@@ -125,7 +125,7 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def _compare(args: argparse.Namespace) -> int:
-    from nearlight.evaluation.compare import compare_dirs
+    from .compare import compare_dirs
 
     checks, lines = compare_dirs(
         args.new, args.baseline, json_out=args.json, tolerance=args.tolerance, alpha=args.alpha,

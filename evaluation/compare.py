@@ -38,7 +38,6 @@ regression (``missing``).
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 from collections.abc import Sequence
@@ -48,9 +47,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from nearlight.errors import UserError
-from nearlight.evaluation.store import atomic_write, read_environments, read_manifest, read_results
-from nearlight.evaluation.tasks import INFO_COLUMNS, METRICS
+from ..errors import UserError
+from ..files.atomic import write_json
+from .store import read_environments, read_manifest, read_results
+from .tasks import INFO_COLUMNS, METRICS
 
 #: Metrics compared (``runtime_s`` only on request; ``specular_rmse`` is in radiance units whose scale
 #: differs per scene, ``specular_rmse_rel`` carries the same information scale-free).
@@ -315,7 +315,7 @@ def compare_dirs(
             f"{', '.join(axes or ['config columns'])} and method"
         )
     env_new, env_base = read_environments(new_dir), read_environments(base_dir)
-    from nearlight.evaluation.environment import differences
+    from .environment import differences
 
     diffs = differences(env_new[-1] if env_new else None, env_base[-1] if env_base else None)
     lines.append("environment: " + ("same as the baseline's" if not diffs else f"{len(diffs)} difference(s)"))
@@ -337,15 +337,7 @@ def compare_dirs(
             "environment_differences": diffs,
             "checks": [{**dataclasses.asdict(c), "regression": c.regression} for c in checks],
         }  # fmt: skip
-        from nearlight.jsonable import jsonable
+        from ..files.jsonable import jsonable
 
-        _write_json(Path(json_out), jsonable(doc))
+        write_json(json_out, jsonable(doc))
     return checks, lines
-
-
-def _write_json(path: Path, doc: Any) -> None:
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(doc, indent=2) + "\n"))
-    except OSError as exc:
-        raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None

@@ -9,7 +9,7 @@ differences; :func:`specular_crlb` applies it to a capture's specular lobe.
 The specular model (what the bound is about): parameters
 ``θ = (lamp x, y, z [m], Ks r, g, b, σ [rad])``, observations the specular
 radiance ``Is`` of every surface pixel and channel, from
-:func:`nearlight.reflectance.specular_radiance` with the Torrance–Sparrow lobe
+:func:`nearlight.physics.reflectance.specular_radiance` with the Torrance–Sparrow lobe
 and unit intensity (Ks absorbs the lamp's intensity, as estimators report it).
 Is is not observed directly but through the analyzer stack
 ``y_k = c0 + c1 cos 2θ_k + c2 sin 2θ_k`` with the diffuse offset and the phase
@@ -28,8 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.estimator.fitting import central_jacobian
-from nearlight.reflectance import specular_radiance
+from ..estimator.fitting import central_jacobian
+from ..physics.camera import auto_saturation
+from ..physics.polarization import analyzer_matrix, aolp, linear_stokes, through_polarizer
+from ..physics.reflectance import specular_radiance
 
 
 def crlb(model: Callable[[np.ndarray], np.ndarray], theta: Any, *, noise_var: Any, steps: Any) -> np.ndarray:
@@ -76,25 +78,24 @@ def specular_variance_factor(angles_deg: Any, beta: np.ndarray) -> np.ndarray:
         ``4 uᵀ C u``: multiply by the per-image noise variance ``v``. Equals
         ``8 / K`` for K equally spaced angles.
     """
-    t = 2.0 * np.radians(np.asarray(angles_deg, dtype=float))
-    A = np.stack([np.ones_like(t), np.cos(t), np.sin(t)], axis=1)
-    C = np.linalg.inv(A.T @ A)[1:, 1:]
+    # With the analyzer model's rows ½ (1, cos 2θ, sin 2θ) (A/2 of the A above), the (c1, c2)
+    # block of ((A/2)ᵀ(A/2))⁻¹ is 4 C exactly (a power-of-two scale), so 4 uᵀ C u = uᵀ (4 C) u.
+    half = analyzer_matrix(angles_deg)
+    C4 = np.linalg.inv(half.T @ half)[1:, 1:]
     u = np.stack([np.cos(2.0 * beta), np.sin(2.0 * beta)], axis=-1)
-    return 4.0 * np.einsum("...i,ij,...j->...", u, C, u)
+    return np.einsum("...i,ij,...j->...", u, C4, u)
 
 
 def stack_phase(stack: np.ndarray, angles_deg: Any) -> np.ndarray:
-    """Phase β (radians) of ``a + b cos 2θ + c sin 2θ`` fitted to a stack, shape ``(H, W, 3)``.
+    """Phase β (radians) of ``a + b cos 2θ + c sin 2θ`` fitted to a stack (the AoLP), shape ``(H, W, 3)``.
 
     Parameters
     ----------
     stack : ndarray, shape (K, H, W, 3)
     angles_deg : array_like, shape (K,)
     """
-    t = 2.0 * np.radians(np.asarray(angles_deg, dtype=float))
-    A = np.stack([np.ones_like(t), np.cos(t), np.sin(t)], axis=1)
-    coef = np.tensordot(np.linalg.pinv(A), np.asarray(stack, dtype=float), axes=1)
-    return 0.5 * np.arctan2(coef[2], coef[1])
+    _, S1, S2 = linear_stokes(stack, angles_deg)
+    return aolp(S1, S2)
 
 
 def camera_noise_variance(stack: np.ndarray, *, noise: Any) -> np.ndarray:
@@ -117,13 +118,12 @@ def camera_noise_variance(stack: np.ndarray, *, noise: Any) -> np.ndarray:
     -------
     ndarray, shape (K, H, W, 3)
     """
-    from nearlight.generator.noise import AUTO_EXPOSURE
-    from nearlight.generator.scene import CameraNoise
+    from ..generator.scene import CameraNoise
 
     if not isinstance(noise, CameraNoise):
         noise = CameraNoise.model_validate(dict(noise))
     L = np.clip(np.nan_to_num(np.asarray(stack, dtype=float)), 0.0, None)
-    saturation = float(L.max()) / AUTO_EXPOSURE if noise.saturation == "auto" else float(noise.saturation)
+    saturation = auto_saturation(stack) if noise.saturation == "auto" else float(noise.saturation)
     g = saturation / noise.full_well
     q = saturation / (2**noise.bits - 1)
     return g * L + (g * noise.read_noise) ** 2 + q**2 / 12.0
@@ -154,7 +154,7 @@ def specular_crlb(capture: Any, *, noise_var: np.ndarray) -> dict[str, float]:
     P, N = np.asarray(capture.P, float)[mask], np.asarray(capture.N, float)[mask]
     cam = np.asarray(capture.camera.position, float)
     lamp = np.asarray(truth["lamp_position"], float)
-    ks = np.asarray(bsdf["ks"], float) * np.asarray(truth.get("lamp_intensity", 2.0), float) / 2.0
+    ks = np.asarray(bsdf["ks"], float) * through_polarizer(truth.get("lamp_intensity", 2.0))
     sigma = float(bsdf["sigma"])
     nv = np.broadcast_to(np.asarray(noise_var, float), capture.stack.shape)
     # Per-image variances of one pixel differ only through shot noise; their mean is what the fit sees.

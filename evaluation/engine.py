@@ -23,9 +23,9 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from nearlight.evaluation.store import MANIFEST, ResultStore, read_manifest, set_aside_damaged_parts
-from nearlight.evaluation.sweep import Sweep, Task
-from nearlight.evaluation.tasks import run_task
+from .store import MANIFEST, ResultStore, read_manifest, set_aside_damaged_parts
+from .sweep import Sweep, Task
+from .tasks import run_task
 
 
 @dataclasses.dataclass
@@ -47,7 +47,7 @@ class RunSummary:
 @functools.lru_cache(maxsize=1)
 def code_version() -> str:
     """``<package version>+g<commit>[.dirty]`` of the running nearlight (commit when in a git checkout)."""
-    from nearlight import __version__
+    from .. import __version__
 
     here = Path(__file__).resolve().parent
     try:

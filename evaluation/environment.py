@@ -49,8 +49,8 @@ def collect() -> dict[str, Any]:
         :data:`CPU_FLAGS` present), ``mitsuba_variant`` (what the generator
         will render with), ``packages`` (name -> version, None when absent).
     """
-    from nearlight.evaluation.engine import code_version
-    from nearlight.generator.llvm import planned_variant
+    from .engine import code_version
+    from ..generator.llvm import planned_variant
 
     model, flags = _cpu()
     packages: dict[str, str | None] = {}

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.reflectance import shading_geometry
+from ..physics.reflectance import shading_geometry
 
 
 def _vec(x: Any) -> np.ndarray:

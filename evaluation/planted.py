@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.capture import Capture
-from nearlight.estimator import Estimate, estimate
-from nearlight.evaluation.metrics import highlight_point
+from ..capture import Capture
+from ..estimator import Estimate, estimate
+from .metrics import highlight_point
 
 
 def further_along_ray(capture: Capture, *, method: str = "full", fraction: float = 0.02, **options: Any) -> Estimate:

@@ -4,7 +4,7 @@ A renderer knows its scene format (a nested dict), where the keys each sweep
 axis changes live in it, how to check a scene, and how to render one. The
 ``mitsuba`` renderer is the generator (scene files of ``scenes/``, renders
 cached on disk by hash); the ``analytic`` renderer calls
-:func:`nearlight.synthetic.analytic_capture` (numpy only, a board or a sphere,
+:func:`nearlight.generator.analytic.analytic_capture` (numpy only, a board or a sphere,
 ``ideal`` polarization): milliseconds per capture, for estimator studies and
 for testing the evaluation itself.
 """
@@ -21,16 +21,17 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.dotted import get_dotted, set_dotted
-from nearlight.errors import UserError
-from nearlight.yamlfile import load_yaml_file
+from ..files.dotted import get_dotted, set_dotted
+from ..errors import UserError
+from ..files.yamlfile import load_yaml_file
+from ..physics.reflectance import torrance_sparrow_from_ward, ward_alpha_from_ts, ward_from_torrance_sparrow
 
 
 def convert_material(material: dict, model: str) -> dict:
     """Switch a Torrance–Sparrow material to Ward or back, keeping the lobe's width and peak.
 
-    ``alpha = sqrt(2)·sigma`` (``exp(-tan²α/α²) ≈ exp(-α²/2σ²)`` for small α)
-    and ``rho_s = 4π alpha² ks`` (equal peak radiance at normal incidence);
+    ``alpha = sqrt(2)·sigma`` and ``rho_s = 4π alpha² ks``
+    (:func:`nearlight.physics.reflectance.ward_from_torrance_sparrow` and its inverse);
     other keys (kd, polarization, eta) are kept.
     """
     old = material.get("model", "torrance_sparrow")
@@ -39,12 +40,12 @@ def convert_material(material: dict, model: str) -> dict:
         return out
     if (old, model) == ("torrance_sparrow", "ward"):
         sigma, ks = float(out.pop("sigma")), np.asarray(out.pop("ks"), dtype=float)
-        out["alpha"] = math.sqrt(2.0) * sigma
-        out["rho_s"] = (4.0 * math.pi * out["alpha"] ** 2 * ks).tolist()
+        out["alpha"], rho_s = ward_from_torrance_sparrow(sigma, ks)
+        out["rho_s"] = rho_s.tolist()
     elif (old, model) == ("ward", "torrance_sparrow"):
         alpha, rho = float(out.pop("alpha")), np.asarray(out.pop("rho_s"), dtype=float)
-        out["sigma"] = alpha / math.sqrt(2.0)
-        out["ks"] = (rho / (4.0 * math.pi * alpha**2)).tolist()
+        out["sigma"], ks = torrance_sparrow_from_ward(alpha, rho)
+        out["ks"] = ks.tolist()
     else:
         raise UserError(f"cannot convert material model {old!r} to {model!r}: give the material as a mapping")
     return out
@@ -108,7 +109,7 @@ class Renderer:
             if model == "torrance_sparrow":
                 set_dotted(scene, f"{self.material_key}.sigma", float(value), where=where)
             elif model == "ward":
-                set_dotted(scene, f"{self.material_key}.alpha", math.sqrt(2.0) * float(value), where=where)
+                set_dotted(scene, f"{self.material_key}.alpha", ward_alpha_from_ts(float(value)), where=where)
             else:
                 raise UserError(f"{where}: material model {model!r} has no roughness key; use a dotted scene key")
         elif name == "analyzer_angles":
@@ -153,7 +154,7 @@ class AnalyticRenderer(Renderer):
 
     def load_base(self, scene: str | dict, *, base_dir: Path, where: str) -> dict:
         """The base scene with every ``analytic_capture`` default filled in (so axes can change any of them)."""
-        from nearlight.synthetic import DEFAULT_BSDF
+        from ..generator.analytic import DEFAULT_BSDF
 
         doc = super().load_base(scene, base_dir=base_dir, where=where)
         self.validate(doc, where=where)
@@ -169,7 +170,7 @@ class AnalyticRenderer(Renderer):
         super().apply_axis(scene, name, value, where=where)
 
     def _params(self) -> dict[str, inspect.Parameter]:
-        from nearlight.synthetic import analytic_capture
+        from ..generator.analytic import analytic_capture
 
         return dict(inspect.signature(analytic_capture).parameters)
 
@@ -207,7 +208,7 @@ class AnalyticRenderer(Renderer):
                  "bool": "true or false", "str": "a name"}  # fmt: skip
 
     def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
-        from nearlight.synthetic import analytic_capture
+        from ..generator.analytic import analytic_capture
 
         return analytic_capture(**copy.deepcopy(scene))
 
@@ -246,7 +247,7 @@ class MitsubaRenderer(Renderer):
     prerender = True
 
     def _scene(self, scene: dict) -> Any:
-        from nearlight.generator import load_scene
+        from ..generator import load_scene
 
         return load_scene(copy.deepcopy(scene))
 
@@ -261,12 +262,12 @@ class MitsubaRenderer(Renderer):
 
     def render_key(self, scene: dict) -> str:
         """The generator's render hash (noise, seed and analyzer angles do not change a render)."""
-        from nearlight.generator.render import render_key
+        from ..generator.render import render_key
 
         return render_key(self._scene(scene))
 
     def prepare(self, scene: dict, *, cache_dir: Path | None) -> bool:
-        from nearlight.generator import render_clean
+        from ..generator import render_clean
 
         parsed = self._scene(scene)
         hit = cache_dir is not None and (cache_dir / f"{self.render_key(scene)}.npz").is_file()
@@ -274,7 +275,7 @@ class MitsubaRenderer(Renderer):
         return not hit
 
     def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
-        from nearlight.generator import render_clean
+        from ..generator import render_clean
 
         return render_clean(self._scene(scene), cache_dir=cache_dir, progress=False)
 

@@ -19,11 +19,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nearlight.errors import UserError
-from nearlight.evaluation.store import MANIFEST, read_manifest, read_results
-from nearlight.evaluation.tasks import METRICS
-from nearlight.figures import save_png
-from nearlight.outputs import check_files_in, make_folder
+from ..errors import UserError
+from .store import MANIFEST, read_manifest, read_results
+from .tasks import METRICS
+from ..files.figures import save_png
+from ..files.outputs import check_files_in, make_folder
 
 #: Metrics shown in the Markdown tables and plots (all are in the CSV files).
 HEADLINE = ("lamp_position_error_pct", "direction_error_deg", "distance_error_m", "sigma_rel_error", "ks_rel_error",
@@ -126,7 +126,7 @@ def plot_axis(df: pd.DataFrame, axis: str, path: Path) -> None:
 
 
 def report_files(varied: list[str]) -> dict[str, str]:
-    """``{file name: kind}`` of every file a report writes (kinds: :data:`nearlight.outputs.KINDS`)."""
+    """``{file name: kind}`` of every file a report writes (kinds: :data:`nearlight.files.outputs.KINDS`)."""
     files = {"summary.md": "report-md", "overall.csv": "report-csv", "by_axis.csv": "report-csv",
              "crlb.csv": "report-csv"}  # fmt: skip
     files.update({_png_name(a): "png" for a in varied})

@@ -34,11 +34,12 @@ from typing import Any
 
 import numpy as np
 
-from nearlight import __version__
-from nearlight.capture import Capture
-from nearlight.errors import UserError
-from nearlight.figures import panel_grid, save_png, tonemap
-from nearlight.jsonable import jsonable
+from .. import __version__
+from ..capture import Capture
+from ..errors import UserError
+from ..files.figures import panel_grid, save_png, tonemap
+from ..files.jsonable import jsonable
+from ..physics.polarization import through_polarizer
 
 #: The paper's own numbers, quoted with their section (never computed here).
 PAPER: dict[str, dict[str, Any]] = {
@@ -140,7 +141,7 @@ class _Run:
         Samples per pixel stay the scene's: the generator traces pixel-centre
         rays, so one sample is exact for direct lighting.
         """
-        from nearlight.generator import load_scene, render_clean
+        from ..generator import load_scene, render_clean
 
         p = self.profile
         sets = {
@@ -154,7 +155,7 @@ class _Run:
 
     def estimate(self, capture: Capture, methods: Mapping[str, tuple[str, dict[str, Any]]]) -> dict[str, Any]:
         """``{label: Estimate}`` for each labelled ``(method, options)``."""
-        from nearlight.estimator import estimate
+        from ..estimator import estimate
 
         return {label: estimate(capture, method=m, **opts) for label, (m, opts) in methods.items()}
 
@@ -165,7 +166,7 @@ class _Run:
 
 def _errors(capture: Capture, est: Any) -> dict[str, float]:
     """Lamp and reflectance errors of one estimate against the capture's truth."""
-    from nearlight.evaluation.tasks import score
+    from .tasks import score
 
     s = score(capture, est)
     return {k: (None if math.isnan(s[k]) else float(s[k])) for k in (
@@ -182,7 +183,7 @@ def _method_row(capture: Capture, est: Any) -> dict[str, Any]:
     (``I_lamp / 2`` behind the ideal polarizer) so that it reads beside the
     truth and the paper's Ks**.
     """
-    reaching = np.asarray(capture.truth["lamp_intensity"], dtype=float) / 2.0
+    reaching = through_polarizer(capture.truth["lamp_intensity"])
     return {
         "lamp_position": [float(v) for v in est.lamp_position],
         "sigma": float(est.sigma),
@@ -195,14 +196,14 @@ def _method_row(capture: Capture, est: Any) -> dict[str, Any]:
 
 def _specular_views(capture: Capture) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Original (no analyzer), separated diffuse and specular images, ``[H, W, 3]`` each."""
-    from nearlight.estimator import separate
+    from ..estimator import separate
 
     spec, diff = separate(capture.stack, capture.analyzer_angles_deg, method="fit")
     return spec + diff, diff, spec
 
 
 def _resynth(capture: Capture, est: Any) -> np.ndarray:
-    from nearlight.estimator import render_specular
+    from ..estimator import render_specular
 
     return np.nan_to_num(np.asarray(render_specular(capture, est), dtype=float))
 
@@ -231,7 +232,7 @@ def board_experiment(run: _Run) -> dict[str, Any]:
 def _object_experiment(run: _Run, scene_file: str, key: str, title: str) -> dict[str, Any]:
     """Separation, estimation, re-synthesis and composite of one object (paper Figs. 5–7),
     seen by :data:`REAL_CAMERA` (noise seed 0)."""
-    from nearlight.generator import add_camera_noise
+    from ..generator import add_camera_noise
 
     cap = add_camera_noise(run.render(scene_file), noise=REAL_CAMERA, seed=0)
     ests = run.estimate(cap, NEAR_METHODS)
@@ -274,7 +275,7 @@ def curved_experiment(run: _Run) -> dict[str, Any]:
 
 def near_vs_distant_experiment(run: _Run) -> dict[str, Any]:
     """The lamp moved along a ray from the board's highlight; error vs distance per method."""
-    from nearlight.generator import load_scene
+    from ..generator import load_scene
 
     base = load_scene(scene_path("ts_board.yaml"))
     centre = np.asarray(base.object.position, dtype=float)
@@ -333,7 +334,7 @@ EXPERIMENTS: dict[str, Callable[[_Run], dict[str, Any]]] = {
 
 
 #: Every file ``reproduce`` writes into its folder, with its kind (see
-#: :mod:`nearlight.outputs`): an existing file there is replaced only when it
+#: :mod:`nearlight.files.outputs`): an existing file there is replaced only when it
 #: is of that kind; other files in the folder are left alone.
 REPORT_FILES: dict[str, str] = {
     "paper_reproduction.json": "reproduction-json",
@@ -363,7 +364,7 @@ def reproduce(out: str | Path, *, quick: bool = False, progress: bool = True) ->
     Path
         ``out / "paper_reproduction.md"``.
     """
-    from nearlight.outputs import check_files_in, check_folder, make_folder
+    from ..files.outputs import check_files_in, check_folder, make_folder
 
     out = Path(out)
     check_folder(out, what="report folder")
@@ -380,8 +381,8 @@ def reproduce(out: str | Path, *, quick: bool = False, progress: bool = True) ->
         if name != "near_vs_distant":
             run.bar.update()
     run.bar.close()
-    from nearlight.evaluation.engine import code_version
-    from nearlight.evaluation.environment import collect
+    from .engine import code_version
+    from .environment import collect
 
     doc = {
         "nearlight_version": __version__,
@@ -394,7 +395,7 @@ def reproduce(out: str | Path, *, quick: bool = False, progress: bool = True) ->
     }
     (out / "paper_reproduction.json").write_text(json.dumps(jsonable(doc), indent=2) + "\n")
     md = out / "paper_reproduction.md"
-    from nearlight.evaluation.reproduce_report import markdown
+    from .reproduce_report import markdown
 
     md.write_text(markdown(doc))
     return md

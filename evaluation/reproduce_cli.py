@@ -26,7 +26,7 @@ def _reference(folder: str, profile: str) -> dict:
     import json
     from pathlib import Path
 
-    from nearlight.errors import UserError
+    from ..errors import UserError
 
     path = Path(folder) / "paper_reproduction.json"
     try:
@@ -47,14 +47,14 @@ def _reference(folder: str, profile: str) -> dict:
 def _run(args: argparse.Namespace) -> int:
     import json
 
-    from nearlight.evaluation.reproduce import FULL, QUICK, reproduce
+    from .reproduce import FULL, QUICK, reproduce
 
     ref = _reference(args.against, (QUICK if args.quick else FULL).name) if args.against else None
     md = reproduce(args.out, quick=args.quick, progress=not args.no_progress)
     print(md)
     if ref is None:
         return 0
-    from nearlight.evaluation.reproduce_check import check
+    from .reproduce_check import check
 
     lines, misses = check(json.loads((md.parent / "paper_reproduction.json").read_text()), ref)
     print(f"against {args.against} (made by {ref.get('code_version', ref.get('nearlight_version'))}):")

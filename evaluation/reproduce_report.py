@@ -117,7 +117,7 @@ direction error seen from the highlight.
 
 def markdown(doc: dict[str, Any]) -> str:
     """The whole report."""
-    from nearlight.evaluation.reproduce_check import tolerance_text
+    from .reproduce_check import tolerance_text
 
     p = doc["profile"]
     env = doc.get("environment") or {}

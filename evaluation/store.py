@@ -20,30 +20,18 @@ from __future__ import annotations
 import json
 import os
 import re
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from nearlight.errors import UserError
+from ..errors import UserError
+from ..files.atomic import atomic_write
 
 RESULTS = "results.parquet"
 MANIFEST = "sweep.json"
 ENVIRONMENT = "environment.json"
 PARTS = "parts"
-
-
-def atomic_write(path: Path, write: Any) -> None:
-    """Call ``write(tmp)`` on a temporary sibling of ``path``, then rename it onto ``path`` (never half a file)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 class ResultStore:
@@ -83,7 +71,7 @@ class ResultStore:
 
     def _record_environment(self) -> None:
         """Add this process's environment to ``environment.json`` unless an identical record is there."""
-        from nearlight.evaluation.environment import collect
+        from .environment import collect
 
         envs = read_environments(self.out)
         here = collect()

@@ -10,7 +10,7 @@ rendering and share the render. A configuration without camera or range noise
 is deterministic: it runs once, with the first seed (more seeds would repeat
 the same numbers).
 
-See the README section "Sweep files" for the keys; :data:`AXES` documents each axis.
+See ``docs/sweep-files.md`` for the keys; :data:`AXES` documents each axis.
 """
 
 from __future__ import annotations
@@ -27,10 +27,10 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from nearlight.errors import UserError
-from nearlight.yamlfile import load_yaml_file
-from nearlight.dotted import set_dotted
-from nearlight.evaluation.renderers import RENDERERS, Renderer
+from ..errors import UserError
+from ..files.yamlfile import load_yaml_file
+from ..files.dotted import set_dotted
+from .renderers import RENDERERS, Renderer
 
 #: Built-in axes: name -> (applied after rendering?, meaning).
 AXES: dict[str, tuple[bool, str]] = {
@@ -286,7 +286,7 @@ def _check_axis_value(path: str, name: str, label: Any, value: Any) -> None:
         if value is not None:
             from pydantic import ValidationError as _VE
 
-            from nearlight.generator.scene import CameraNoise
+            from ..generator.scene import CameraNoise
 
             try:
                 CameraNoise.model_validate(value)
@@ -314,8 +314,8 @@ def _physical_scene(renderer: Renderer, base: dict, chosen: dict[str, tuple[Any,
 def _method(path: str, i: int, m: str | _Method, check: bool) -> Method:
     spec = _Method(method=m) if isinstance(m, str) else m
     if check:
-        from nearlight.estimator import METHODS, load_method
-        from nearlight.estimator.options import check_options
+        from ..estimator import METHODS, load_method
+        from ..estimator.options import check_options
 
         if ":" not in spec.method and spec.method not in METHODS:
             raise UserError(

@@ -18,7 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.evaluation import metrics
+from ..physics.polarization import through_polarizer
+from ..physics.reflectance import ts_sigma_from_ward
+from . import metrics
 
 #: Metric columns (all "lower is better"), in table order, with their units.
 METRICS: dict[str, str] = {
@@ -42,7 +44,7 @@ def truth_sigma(bsdf: Mapping[str, Any]) -> float:
     if model == "torrance_sparrow":
         return float(bsdf["sigma"])
     if model == "ward":
-        return float(bsdf["alpha"]) / math.sqrt(2.0)
+        return ts_sigma_from_ward(float(bsdf["alpha"]))
     return math.nan
 
 
@@ -64,12 +66,12 @@ def truth_estimate(capture: Any) -> Any:
     truth = capture.truth
     bsdf = truth["bsdf"]
     intensity = np.broadcast_to(np.asarray(truth.get("lamp_intensity", 2.0), dtype=float), (3,))
-    from nearlight.estimator import Estimate
+    from ..estimator import Estimate
 
     return Estimate(
         method="truth",
         lamp_position=np.asarray(truth["lamp_position"], dtype=float),
-        ks=truth_ks(bsdf) * intensity / 2.0,
+        ks=truth_ks(bsdf) * through_polarizer(intensity),
         sigma=truth_sigma(bsdf),
     )
 
@@ -104,7 +106,7 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
     ks_true = truth_ks(bsdf)
     observed = capture.extra["truth_specular"]
     mask = capture.surface_mask
-    from nearlight.estimator import render_specular
+    from ..estimator import render_specular
 
     rendered = np.asarray(render_specular(capture, estimate), dtype=float)
     rmse = metrics.specular_rmse(rendered, observed, mask)
@@ -127,7 +129,7 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
 def run_method(capture: Any, method: str, options: Mapping[str, Any]) -> Any:
     """Run a built-in method by name or a ``module:function`` estimator on ``capture``, through
     :func:`nearlight.estimator.estimate` (options checked, result type checked, timings)."""
-    from nearlight.estimator import estimate
+    from ..estimator import estimate
 
     return estimate(capture, method=method, **options)
 
@@ -137,11 +139,11 @@ def _noisy(clean: Any, task: Mapping[str, Any]) -> Any:
     (the one seed rule of :mod:`nearlight.generator.noise`, as ``nearlight render`` with ``capture.seed``)."""
     capture = clean
     if task["noise"] is not None:
-        from nearlight.generator import add_camera_noise
+        from ..generator import add_camera_noise
 
         capture = add_camera_noise(capture, noise=task["noise"], seed=task["seed"])
     if task["range_noise"] > 0:
-        from nearlight.generator import add_range_noise
+        from ..generator import add_range_noise
 
         capture = add_range_noise(capture, sigma_m=task["range_noise"], seed=task["seed"])
     return capture
@@ -149,7 +151,7 @@ def _noisy(clean: Any, task: Mapping[str, Any]) -> Any:
 
 def _crlb(clean: Any, task: Mapping[str, Any]) -> dict[str, float]:
     """CRLB columns when they apply (TS truth, ideal mode, a stack, Gaussian-modelled camera noise)."""
-    from nearlight.evaluation.crlb import camera_noise_variance, specular_crlb
+    from .crlb import camera_noise_variance, specular_crlb
 
     bsdf = clean.truth["bsdf"]
     if not task["crlb"] or task["noise"] is None or clean.stack is None or bsdf.get("model") != "torrance_sparrow":

@@ -11,9 +11,9 @@ Public API::
 Mitsuba is imported only when something is rendered.
 """
 
-from nearlight.generator.pipeline import render_capture
-from nearlight.generator.noise import add_camera_noise, add_range_noise
-from nearlight.generator.render import render_clean
-from nearlight.generator.scene import Scene, load_scene
+from .pipeline import render_capture
+from .noise import add_camera_noise, add_range_noise
+from .render import render_clean
+from .scene import Scene, load_scene
 
 __all__ = ["Scene", "add_camera_noise", "add_range_noise", "load_scene", "render_capture", "render_clean"]

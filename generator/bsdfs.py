@@ -2,7 +2,7 @@
 
 ``nearlight_bsdf`` is one Mitsuba BSDF returning Mueller matrices in polarized
 variants: a specular lobe (``model`` ``torrance_sparrow`` or ``ward``, the
-BRDFs of :mod:`nearlight.reflectance`) plus a Lambertian, fully depolarizing
+BRDFs of :mod:`nearlight.physics.reflectance`) plus a Lambertian, fully depolarizing
 diffuse lobe ``kd / π``. Every parameter is a plain number (one colour
 channel: the generator renders once per channel).
 

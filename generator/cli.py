@@ -48,10 +48,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _render(args: argparse.Namespace) -> int:
     import sys
 
-    from nearlight.generator import load_scene, render_capture
+    from . import load_scene, render_capture
 
-    from nearlight.generator.pipeline import check_writable
-    from nearlight.outputs import check_folder
+    from .pipeline import check_writable
+    from ..files.outputs import check_folder
 
     check_writable(Path(args.out), overwrite=args.overwrite)
     scene = load_scene(args.scene, overrides=args.overrides)
@@ -66,9 +66,9 @@ def _render(args: argparse.Namespace) -> int:
 def _show(args: argparse.Namespace) -> int:
     import sys
 
-    from nearlight.generator.show import contact_sheet
+    from .show import contact_sheet
 
-    from nearlight.outputs import check_file_out
+    from ..files.outputs import check_file_out
 
     folder = Path(args.capture)
     named = folder if folder.name not in ("", "..") else folder.resolve()

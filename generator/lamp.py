@@ -16,7 +16,7 @@ Two independent routes, which the tests compare:
   works with ``path``.
 - :func:`polarizer_sheet`: Mitsuba's unpolarized ``point`` emitter with a
   geometric ``polarizer`` rectangle 1 mm in front of it; shadow rays only pass
-  a sheet with the ``volpath`` integrator (DESIGN.md).
+  a sheet with the ``volpath`` integrator (docs/physics.md, "Facts measured").
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ def register(mi: ModuleType) -> None:
     """Register ``nearlight_lamp`` with the active Mitsuba variant."""
     import drjit as dr
 
-    from nearlight.generator.bsdfs import zero_struct
+    from .bsdfs import zero_struct
 
     class PolarizedPointLamp(mi.Emitter):
         def __init__(self, props):

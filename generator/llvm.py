@@ -1,7 +1,7 @@
 """Import Mitsuba 3 with a working Dr.Jit LLVM backend, or fall back to scalar.
 
 Dr.Jit's LLVM backend aborts (uncatchably) with Debian's default libLLVM 14/15;
-LLVM >= 17 works (DESIGN.md, "Facts measured"). :func:`mitsuba` points
+LLVM >= 17 works (docs/physics.md, "Facts measured"). :func:`mitsuba` points
 ``DRJIT_LIBLLVM_PATH`` at such a library *before* the first ``import mitsuba``
 when the user has not set it, and selects the variant the generator renders
 with:
@@ -66,7 +66,7 @@ def planned_variant() -> tuple[str, str | None]:
     """
     forced = os.environ.get("NEARLIGHT_MITSUBA_VARIANT")
     if forced not in (None, "", LLVM_VARIANT, SCALAR_VARIANT):
-        from nearlight.errors import UserError
+        from ..errors import UserError
 
         raise UserError(f"NEARLIGHT_MITSUBA_VARIANT: expected {LLVM_VARIANT} or {SCALAR_VARIANT}, got {forced!r}")
     if forced == SCALAR_VARIANT:
@@ -100,7 +100,7 @@ def mitsuba() -> ModuleType:
             stacklevel=2,
         )
     mi.set_variant(variant)
-    from nearlight.generator import bsdfs, lamp
+    from . import bsdfs, lamp
 
     bsdfs.register(mi)
     lamp.register(mi)

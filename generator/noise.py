@@ -50,7 +50,8 @@ Then, per pixel and channel:
 6. back to radiance units.
 
 ``saturation: auto`` puts the brightest clean recorded pixel at 90 % of the full
-well (an exposure a careful operator would pick).
+well (an exposure a careful operator would pick;
+:func:`nearlight.physics.camera.auto_saturation`, the rule the Cramér–Rao bounds use too).
 
 Why inverse CDFs of fixed draws: Dr.Jit's LLVM backend compiles for the host
 CPU, so a render can differ in its last bits between machines. With the same
@@ -82,11 +83,9 @@ from typing import Any
 import numpy as np
 from scipy.special import ndtr
 
-from nearlight.capture import Capture
-from nearlight.generator.scene import CameraNoise
-
-#: Fraction of the full well the brightest clean pixel reaches with ``saturation: auto``.
-AUTO_EXPOSURE = 0.9
+from ..capture import Capture
+from ..physics.camera import AUTO_EXPOSURE, auto_saturation
+from .scene import CameraNoise
 
 #: Expected electrons below which shot noise is the exact Poisson quantile (see the module docstring).
 EXACT_POISSON_BELOW = 20.0
@@ -226,8 +225,7 @@ def add_camera_noise(capture: Capture, *, noise: CameraNoise | Mapping[str, Any]
         noise = CameraNoise.model_validate(dict(noise))
     images = {k: getattr(capture, k) for k in RECORDED if getattr(capture, k) is not None}
     if noise.saturation == "auto":
-        peak = max(float(np.nanmax(v)) for v in images.values())
-        saturation = peak / AUTO_EXPOSURE if peak > 0 else 1.0
+        saturation = auto_saturation(*images.values())
     else:
         saturation = float(noise.saturation)
     rng, _ = noise_rngs(seed)

@@ -5,11 +5,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from nearlight.capture import write_capture
-from nearlight.outputs import check_capture_out, check_folder
-from nearlight.generator.noise import add_camera_noise, add_range_noise
-from nearlight.generator.render import check_memory, render_clean
-from nearlight.generator.scene import Scene
+from ..capture import write_capture
+from ..files.outputs import check_capture_out, check_folder
+from .noise import add_camera_noise, add_range_noise
+from .render import check_memory, render_clean
+from .scene import Scene
 
 
 def render_capture(scene: Scene, out_dir: str | os.PathLike, *, cache_dir: str | os.PathLike | None = None,
@@ -57,5 +57,5 @@ def render_capture(scene: Scene, out_dir: str | os.PathLike, *, cache_dir: str |
 
 def check_writable(out: Path, *, overwrite: bool) -> None:
     """Raise :class:`UserError` unless a capture can be created at ``out`` (see
-    :func:`nearlight.outputs.check_capture_out`: ``--overwrite`` replaces only a capture)."""
+    :func:`nearlight.files.outputs.check_capture_out`: ``--overwrite`` replaces only a capture)."""
     check_capture_out(out, overwrite=overwrite)

@@ -1,7 +1,7 @@
 """Linear-Stokes fit of an analyzer stack with its residual (for tests and contact sheets).
 
-The fit itself is :func:`nearlight.stokes.linear_stokes`; this adds the
-per-angle residual and the derived images (amplitude, Imin, DoLP, AoLP).
+The fit and the derived images are :mod:`nearlight.physics.polarization`'s; this adds the
+per-angle residual and holds them together (amplitude, Imin, DoLP, AoLP).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from nearlight.stokes import analyzer_matrix, linear_stokes
+from ..physics.polarization import aolp, analyzer_matrix, dolp, linear_amplitude, linear_stokes, separate_stokes
 
 
 class StokesFit(NamedTuple):
@@ -24,21 +24,21 @@ class StokesFit(NamedTuple):
     @property
     def amplitude(self) -> np.ndarray:
         """``Imax − Imin = sqrt(S1² + S2²)``."""
-        return np.hypot(self.S1, self.S2)
+        return linear_amplitude(self.S1, self.S2)
 
     @property
     def imin(self) -> np.ndarray:
-        return 0.5 * (self.S0 - self.amplitude)
+        """``Imin = Id/2``."""
+        return 0.5 * separate_stokes(self.S0, self.S1, self.S2)[1]
 
     @property
     def dolp(self) -> np.ndarray:
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(self.S0 > 0, self.amplitude / self.S0, 0.0)
+        return dolp(self.S0, self.amplitude)
 
     @property
     def aolp(self) -> np.ndarray:
         """Angle of linear polarization, radians in (−π/2, π/2], from the image horizontal."""
-        return 0.5 * np.arctan2(self.S2, self.S1)
+        return aolp(self.S1, self.S2)
 
 
 def fit_stokes(stack: np.ndarray, angles_deg: np.ndarray) -> StokesFit:

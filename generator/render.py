@@ -40,10 +40,12 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.capture import Camera, Capture
-from nearlight.errors import UserError
-from nearlight.generator.lamp import filter_axes
-from nearlight.generator.scene import MitsubaMaterial, Scene
+from ..capture import Camera, Capture
+from ..errors import UserError
+from ..files.atomic import atomic_write
+from ..physics.polarization import analyzer_stack
+from .lamp import filter_axes
+from .scene import MitsubaMaterial, Scene
 
 #: Bump when a change alters rendered values (invalidates caches).
 RENDER_VERSION = 1
@@ -110,7 +112,7 @@ def bsdf_dict(scene: Scene, *, part: str, channel: int | None) -> dict:
 
 def object_dicts(mi: ModuleType, scene: Scene, bsdf: dict, scratch: Path) -> dict[str, dict]:
     """The object's shapes with ``bsdf``, transforms converted for Mitsuba."""
-    from nearlight.generator.shapes import BUILDERS
+    from .shapes import BUILDERS
 
     shapes = BUILDERS[scene.object.type](scene.object, bsdf, scratch)
     return {name: {**d, "to_world": _transform(mi, d["to_world"])} for name, d in shapes.items()}
@@ -131,7 +133,7 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
     stokes : bool
         Wrap the integrator in Mitsuba's ``stokes`` (for ``mi.render``).
     """
-    from nearlight.generator import lamp
+    from . import lamp
 
     intensity = 1.0 if channel is None else scene.lamp.intensity[channel]
     facing = scene.lamp_facing
@@ -192,7 +194,7 @@ def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=N
     """
     import drjit as dr
 
-    from nearlight.generator.llvm import is_scalar
+    from .llvm import is_scalar
 
     sensor = mscene.sensors()[0]
     if is_scalar(mi):
@@ -253,7 +255,7 @@ def _trace_stokes_scalar(mi: ModuleType, mscene: Any, *, spp: int, seed: int, ti
 
 def surface(mi: ModuleType, mscene: Any) -> tuple[np.ndarray, np.ndarray]:
     """Exact ``P`` and ``N`` ``[H, W, 3]`` at pixel centres (NaN where no surface)."""
-    from nearlight.generator.llvm import is_scalar
+    from .llvm import is_scalar
 
     sensor = mscene.sensors()[0]
     w, h = sensor.film().size()
@@ -433,14 +435,7 @@ def _cache_entry_ok(arrays: dict[str, np.ndarray], scene: Scene) -> bool:
 
 def _save_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(path, lambda tmp: np.savez(tmp, **arrays), suffix=".npz")  # np.savez adds .npz to other names
 
 
 #: Scratch folders of renders (mesh files for Mitsuba) in the temporary folder:
@@ -508,7 +503,7 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
     """Run Mitsuba: ``P``, ``N``, ``to_world`` and Stokes ``[3, H, W, 3]`` per part."""
     from tqdm import tqdm
 
-    from nearlight.generator.llvm import mitsuba
+    from .llvm import mitsuba
 
     mi = mitsuba()
     check_mitsuba_bsdf(mi, scene)
@@ -546,7 +541,7 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
 
 
 def _check_geometry(mi: ModuleType, scene: Scene, geometry: Any, P: np.ndarray) -> None:
-    from nearlight.generator.shapes import CLOSED
+    from .shapes import CLOSED
 
     if not np.isfinite(P).all(axis=-1).any():
         raise UserError(
@@ -555,22 +550,6 @@ def _check_geometry(mi: ModuleType, scene: Scene, geometry: Any, P: np.ndarray) 
         )
     if scene.object.type in CLOSED and lamp_inside(mi, geometry, scene.lamp.position):
         raise UserError(f"{scene.source}: lamp.position: {list(scene.lamp.position)} is inside the object")
-
-
-def analyzer_stack(stokes: np.ndarray, angles_deg: Any) -> np.ndarray:
-    """Ideal-analyzer images ``½ (S0 + S1 cos 2θ + S2 sin 2θ)``.
-
-    Parameters
-    ----------
-    stokes : ndarray, shape (3, H, W, C)
-    angles_deg : array_like, shape (K,)
-
-    Returns
-    -------
-    ndarray, shape (K, H, W, C)
-    """
-    t = np.radians(np.asarray(angles_deg, float))[:, None, None, None]
-    return 0.5 * (stokes[0] + stokes[1] * np.cos(2 * t) + stokes[2] * np.sin(2 * t))
 
 
 def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Capture:

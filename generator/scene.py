@@ -3,7 +3,7 @@
 A scene has five sections: ``camera``, ``object``, ``material``, ``lamp`` and
 ``capture``. Positions are in metres, angles in degrees (the file is what a
 human types); colours are ``[r, g, b]``. ``Scene.model_dump(mode="json")``
-loads back to the same scene.
+loads back to the same scene. Every key is specified in ``docs/scene-files.md``.
 """
 
 from __future__ import annotations
@@ -28,9 +28,9 @@ from pydantic import (
     model_validator,
 )
 
-from nearlight.dotted import set_dotted
-from nearlight.errors import UserError
-from nearlight.yamlfile import load_yaml_file
+from ..files.dotted import set_dotted
+from ..errors import UserError
+from ..files.yamlfile import load_yaml_file
 
 PositiveFloat = Annotated[float, Field(gt=0)]
 Vec3 = tuple[float, float, float]

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.generator.scene import Board, Bookend, Cylinder, Mesh, Sphere, Torus, placement
+from .scene import Board, Bookend, Cylinder, Mesh, Sphere, Torus, placement
 
 #: Object types that enclose a volume (a lamp can be inside them).
 CLOSED = ("sphere", "cylinder", "torus", "mesh")

@@ -7,9 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from nearlight.capture import Capture, read_capture
-from nearlight.figures import panel_grid, tonemap
-from nearlight.generator.polarimetry import fit_stokes
+from ..capture import Capture, read_capture
+from ..files.figures import panel_grid, tonemap
+from ..physics.polarization import aolp, dolp, separate_stokes
+from .polarimetry import fit_stokes
 
 
 def _white(img: np.ndarray) -> float:
@@ -26,19 +27,18 @@ def panels(capture: Capture) -> list[tuple[str, np.ndarray, dict]]:
         for k in np.unique(np.linspace(0, len(angles) - 1, min(4, len(angles))).round().astype(int)):
             out.append((f"analyzer {angles[k]:g}°", tonemap(stack[k], white=white), {}))
         fit = fit_stokes(stack, angles)
-        specular, diffuse = fit.amplitude, 2 * fit.imin
+        specular, diffuse = separate_stokes(fit.S0, fit.S1, fit.S2)
         lum = fit.S0.mean(-1)
-        dolp = np.where(lum > 1e-3 * lum.max(), fit.amplitude.mean(-1) / np.maximum(lum, 1e-30), np.nan)
-        aolp = np.degrees(0.5 * np.arctan2(fit.S2.mean(-1), fit.S1.mean(-1)))
-        aolp = np.where(np.isfinite(dolp), aolp, np.nan)
+        dolp_img = np.where(lum > 1e-3 * lum.max(), dolp(lum, fit.amplitude.mean(-1)), np.nan)
+        aolp_img = np.where(np.isfinite(dolp_img), np.degrees(aolp(fit.S1.mean(-1), fit.S2.mean(-1))), np.nan)
     else:
-        specular, diffuse, dolp, aolp = capture.specular, capture.diffuse, None, None
+        specular, diffuse, dolp_img, aolp_img = capture.specular, capture.diffuse, None, None
     for name, img in (("specular (Imax−Imin)", specular), ("diffuse (2·Imin)", diffuse)):
         if img is not None:
             out.append((name, tonemap(img, white=_white(img)), {}))
-    if dolp is not None:
-        out.append(("DoLP", dolp, {"cmap": "viridis", "vmin": 0, "vmax": 1}))
-        out.append(("AoLP (deg)", aolp, {"cmap": "twilight", "vmin": -90, "vmax": 90}))
+    if dolp_img is not None:
+        out.append(("DoLP", dolp_img, {"cmap": "viridis", "vmin": 0, "vmax": 1}))
+        out.append(("AoLP (deg)", aolp_img, {"cmap": "twilight", "vmin": -90, "vmax": 90}))
     return out
 
 

@@ -14,13 +14,13 @@ import nearlight.estimator as est_pkg
 from nearlight.capture import write_capture
 from nearlight.errors import UserError
 from nearlight.estimator import METHODS, Estimate, estimate, load_method
-from nearlight.synthetic import analytic_capture
+from nearlight.generator.analytic import analytic_capture
 
 
 def test_estimator_never_imports_mitsuba_or_drjit():
     code = (
-        "import sys, nearlight.estimator, nearlight.estimator.cli, nearlight.estimator.plot, nearlight.synthetic\n"
-        "from nearlight.synthetic import analytic_capture\n"
+        "import sys, nearlight.estimator, nearlight.estimator.cli, nearlight.estimator.plot, nearlight.generator.analytic\n"
+        "from nearlight.generator.analytic import analytic_capture\n"
         "nearlight.estimator.estimate(analytic_capture(width=48, height=36), method='full')\n"
         "print(sorted(m for m in sys.modules if m.split('.')[0] in ('mitsuba', 'drjit')))"
     )

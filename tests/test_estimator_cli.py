@@ -9,7 +9,7 @@ import pytest
 
 from nearlight.capture import write_capture
 from nearlight.cli import main
-from nearlight.synthetic import analytic_capture
+from nearlight.generator.analytic import analytic_capture
 
 
 @pytest.fixture
@@ -121,7 +121,7 @@ def test_bad_method_or_option(capture_dir, capsys, argv, needle):
     assert needle in _error(capsys, ["estimate", str(capture_dir), *argv])
 
 
-# Option values of the wrong type or range (the examples, and one per declared kind), refused from each
+# Option values of the wrong type or range (the README's `threshold=abc`, and one per declared kind), refused from each
 # method's declaration (nearlight.estimator.options) before the capture is even read.
 @pytest.mark.parametrize(
     ("method", "option", "needle"),

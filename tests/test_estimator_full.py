@@ -9,7 +9,7 @@ from scipy.stats import chi2
 from nearlight.estimator import estimate, render_specular
 from nearlight.estimator.fitting import central_jacobian
 from nearlight.estimator.full import PointLampModel
-from nearlight.synthetic import analytic_capture
+from nearlight.generator.analytic import analytic_capture
 
 TS = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.06}
 

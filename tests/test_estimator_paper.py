@@ -16,7 +16,7 @@ from nearlight.estimator.paper import (
     stage_one,
 )
 from nearlight.estimator.fitting import log_regression
-from nearlight.synthetic import analytic_capture
+from nearlight.generator.analytic import analytic_capture
 
 TS = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.06}
 

@@ -8,7 +8,7 @@ import pytest
 from nearlight.errors import UserError
 from nearlight.estimator import separate
 from nearlight.estimator.normals import normals_from_positions
-from nearlight.synthetic import analytic_capture
+from nearlight.generator.analytic import analytic_capture
 
 FOUR = (0.0, 45.0, 90.0, 135.0)
 EIGHTEEN = tuple(np.arange(18) * 10.0)

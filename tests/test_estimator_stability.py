@@ -1,6 +1,7 @@
-"""Regression verdicts that hold on every machine (issue 9, item 5): every built-in
-method gives the same answer, within the tolerance its docstring states, for inputs
-that differ by float rounding.
+"""Regression verdicts that hold on every machine: every built-in method gives the
+same answer, within the tolerance its docstring states (the source of each bound
+below), for inputs that differ by float rounding (README: "methods stable under
+float rounding").
 
 The perturbation moves every float32 image of a capture (analyzer stack, P, N) by
 one ulp up or down, the sign drawn per value from a seeded generator: what a
@@ -18,7 +19,7 @@ import pytest
 
 from nearlight.estimator import METHODS, estimate
 from nearlight.generator.noise import add_camera_noise
-from nearlight.synthetic import analytic_capture
+from nearlight.generator.analytic import analytic_capture
 
 TS = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1}
 

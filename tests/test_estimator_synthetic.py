@@ -1,4 +1,4 @@
-"""nearlight.synthetic: the analytic captures the estimator's tests stand on."""
+"""nearlight.generator.analytic: the analytic captures the estimator's tests stand on."""
 
 from __future__ import annotations
 
@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from nearlight.capture import read_capture, write_capture
-from nearlight.reflectance import diffuse_radiance, specular_radiance
-from nearlight.synthetic import analytic_capture, camera_rays, look_at_matrix
+from nearlight.physics.reflectance import diffuse_radiance, specular_radiance
+from nearlight.generator.analytic import analytic_capture
+from nearlight.physics.camera import camera_rays, look_at_matrix
 
 
 def test_camera_follows_mitsuba_look_at_and_image_orientation():

@@ -10,8 +10,8 @@ import pytest
 from nearlight.evaluation import metrics
 from nearlight.evaluation.crlb import crlb, specular_crlb, specular_variance_factor, stack_phase
 from nearlight.evaluation.tasks import METRICS, score, truth_estimate
-from nearlight.reflectance import specular_radiance, shading_geometry
-from nearlight.synthetic import analytic_capture
+from nearlight.physics.reflectance import specular_radiance, shading_geometry
+from nearlight.generator.analytic import analytic_capture
 
 
 @pytest.mark.parametrize("shape", ["board", "sphere"])

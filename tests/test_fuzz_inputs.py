@@ -16,7 +16,7 @@ Cases are generated from a fixed seed (:data:`SEED`), so the list is the same
 on every run; :func:`test_case_count` prints how many there are. Renders never
 run: Mitsuba's tracing is replaced by a stub that fails the case if reached,
 so a broken scene must be refused before any rendering. Grow the list with
-every new class of bad input found (issue 12).
+every new class of bad input found.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ import yaml
 
 from nearlight.capture import write_capture
 from nearlight.cli import main
-from nearlight.synthetic import analytic_capture
+from nearlight.generator.analytic import analytic_capture
 
 SEED = 20261125
 ROOT = Path(__file__).resolve().parents[1]
@@ -866,7 +866,7 @@ def test_broken_input_is_one_clear_line(c: Case, tmp_path, assets, capsys, monke
 
 
 def test_case_count():
-    """How many generated cases the layer runs (quoted in issue 12's closing note)."""
+    """How many generated cases the layer runs (the README's "several hundred")."""
     ids = [c.id for c in CASES]
     assert len(ids) == len(set(ids)) and len(ids) >= 300
     print(f"\nfuzz layer: {len(ids)} generated broken-input cases (seed {SEED})")

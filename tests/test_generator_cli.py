@@ -105,7 +105,7 @@ def test_shipped_scenes_render_with_the_closed_form(name):
     # (pixels >= 2 px from an edge; median <= 0.5 %, p99 <= 3 %), and the highlight lies inside the image.
     from scipy import ndimage
 
-    from nearlight import reflectance
+    from nearlight.physics import reflectance
 
     cap = render_clean(load_scene(SCENES / name, overrides={"camera.resolution": [64, 48]}), progress=False)
     m = ndimage.binary_erosion(cap.surface_mask, iterations=2)

@@ -10,8 +10,9 @@ from scipy import special, stats
 
 from nearlight.capture import Camera, Capture, read_capture
 from nearlight.generator import add_camera_noise, add_range_noise
-from nearlight.generator.noise import AUTO_EXPOSURE, EXACT_POISSON_BELOW, noise_rngs, shot_electrons
-from nearlight.synthetic import analytic_capture
+from nearlight.generator.noise import EXACT_POISSON_BELOW, noise_rngs, shot_electrons
+from nearlight.physics.camera import AUTO_EXPOSURE
+from nearlight.generator.analytic import analytic_capture
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -81,7 +82,7 @@ def test_range_noise_moves_points_along_camera_rays_and_drops_normals():
     assert add_range_noise(cap, sigma_m=0.0, seed=3) is cap
 
 
-# --- continuity in the render, the shot-noise quantile, the seed rule (issue 9) ---------------------------
+# --- continuity in the render, the shot-noise quantile, the seed rule (nearlight.generator.noise's docstring) ---
 
 
 def _adc_codes(out: Capture, noise: dict) -> np.ndarray:
@@ -101,13 +102,13 @@ def _adc_codes(out: Capture, noise: dict) -> np.ndarray:
     ],
 )
 def test_a_last_bit_change_of_the_render_moves_the_noise_by_at_most_one_adc_step(noise, rng):
-    # A different CPU renders the same scene with other last bits (DESIGN.md, "Facts measured"): move every
+    # A different CPU renders the same scene with other last bits (docs/physics.md, "Facts measured"): move every
     # pixel by one float32 ulp, up or down at random (relative <= 1.2e-7; `auto` saturation moves with the
     # peak). With the same draws the expansion branch and the read noise are continuous in the clean value, so
     # the ADC code can only tick over a rounding threshold (<= 1 step). Only the exact Poisson quantile
     # (lam < 20 e-) can jump, by one electron: it does where u falls between P(k; lam) and P(k; lam + dlam)
     # for some k, probability sum_k pmf(k)·|dlam| = |dlam| <= 20 · 1.2e-7 = 2.4e-6 per pixel. So the expected
-    # fraction beyond one step is < 3e-6, and we ask >= 99.99 % (a margin of ~40; the issue asked 99.9 %).
+    # fraction beyond one step is < 3e-6, and we ask >= 99.99 % (a margin of ~40 over that bound).
     # Measured with this perturbation: this code 100 % and 99.99995 %; numpy's old Poisson sampler, which
     # re-draws every pixel after its first lost sync, 97.9 % on the default camera (and 99.997 % photon-starved,
     # where its first lost sync came late).

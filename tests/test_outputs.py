@@ -11,7 +11,7 @@ import pytest
 from nearlight.capture import Camera, Capture, read_capture, write_capture
 from nearlight.cli import main
 from nearlight.errors import UserError
-from nearlight.outputs import check_file_out, is_capture_dir
+from nearlight.files.outputs import check_file_out, is_capture_dir
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 TINY = ["--set", "camera.resolution=[24,18]", "--quiet", "--no-cache"]
@@ -130,7 +130,7 @@ def test_file_output_names(tmp_path):
 
 def test_a_failing_plot_leaves_no_estimate_json_behind(tmp_path, capsys, monkeypatch):
     from nearlight.estimator import plot as plot_module
-    from nearlight.synthetic import analytic_capture
+    from nearlight.generator.analytic import analytic_capture
 
     cap = write_capture(analytic_capture(width=32, height=24), tmp_path / "cap")
 

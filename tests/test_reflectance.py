@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nearlight.reflectance import (
+from nearlight.physics.reflectance import (
     diffuse_radiance,
     mirror_direction,
     normalize,

@@ -26,7 +26,7 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from nearlight.errors import UserError
+from ..errors import UserError
 
 #: The capture format's file names (see :mod:`nearlight.capture`).
 CAPTURE_FILES = ("capture.json", "capture.exr")

@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.errors import UserError
+from ..errors import UserError
+from .atomic import atomic_write
 
 
 def tonemap(img: np.ndarray, *, white: float | None = None, gamma: float = 2.2) -> np.ndarray:
@@ -77,9 +78,9 @@ def panel_grid(
     ------
     UserError
         ``path`` cannot be written, or holds a file that is not a PNG image
-        (see :func:`nearlight.outputs.check_file_out`).
+        (see :func:`nearlight.files.outputs.check_file_out`).
     """
-    from nearlight.outputs import check_file_out
+    from .outputs import check_file_out
 
     path = check_file_out(path, "png")
     import matplotlib
@@ -119,20 +120,10 @@ def save_png(fig: Any, path: str | os.PathLike, *, dpi: int = 100) -> Path:
     UserError
         ``path`` cannot be written.
     """
-    import tempfile
-
     path = Path(path)
-    tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, dpi=dpi, format="png")
-        os.replace(tmp, path)
-        tmp = None
+        atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format="png"))
     except OSError as exc:
         raise UserError(f"{path}: cannot write the figure ({exc.strerror or exc})") from None
-    finally:
-        if tmp is not None:
-            Path(tmp).unlink(missing_ok=True)
     return path

@@ -13,22 +13,21 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib
 import signal
 import sys
 import threading
 from collections.abc import Iterator, Sequence
 
-from nearlight import __version__
-from nearlight.errors import UserError
+from . import __version__
+from .errors import UserError
+from .estimator import cli as estimator_cli
+from .evaluation import cli as evaluation_cli
+from .evaluation import reproduce_cli
+from .generator import cli as generator_cli
 
-#: Modules whose ``register(subparsers)`` adds verbs, in help order.
-VERB_MODULES = (
-    "nearlight.evaluation.reproduce_cli",
-    "nearlight.generator.cli",
-    "nearlight.estimator.cli",
-    "nearlight.evaluation.cli",
-)
+#: Modules whose ``register(subparsers)`` adds verbs, in help order. Importing
+#: them imports nothing heavy: Mitsuba is imported only when a verb that renders runs.
+VERB_MODULES = (reproduce_cli, generator_cli, estimator_cli, evaluation_cli)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -40,8 +39,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"nearlight {__version__}")
     sub = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
-    for name in VERB_MODULES:
-        importlib.import_module(name).register(sub)
+    for module in VERB_MODULES:
+        module.register(sub)
     return parser
 
 

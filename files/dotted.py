@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from nearlight.errors import UserError
+from ..errors import UserError
 
 
 def set_dotted(doc: dict[str, Any], key: str, value: Any, *, where: str) -> None:

@@ -3,8 +3,8 @@
 Builds a :class:`~nearlight.capture.Capture` without a renderer, for tests of
 the estimator and the evaluation: a planar board or a sphere seen by a pinhole
 camera, lit by a point lamp behind an ideal linear polarizer, shaded with the
-closed-form models of :mod:`nearlight.reflectance`. The analyzer stack follows
-DESIGN.md's ``ideal`` mode, ``I(θ) = Id/2 + Is·cos²(θ − β)``.
+closed-form models of :mod:`nearlight.physics` (``docs/physics.md``). The analyzer
+stack follows the ``ideal`` mode, ``I(θ) = Id/2 + Is·cos²(θ − β)``.
 
 Default scene (tabletop, metres, z up): a 0.4 m board lying on the table at
 the origin, the camera 0.61 m away looking down at it, the lamp about 0.4 m
@@ -18,41 +18,13 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.capture import Camera, Capture
-from nearlight.reflectance import diffuse_radiance, normalize, specular_radiance, tangent_basis
+from ..capture import Camera, Capture
+from ..physics.camera import camera_rays, look_at_matrix
+from ..physics.polarization import analyzer_stack_ideal, through_polarizer
+from ..physics.reflectance import diffuse_radiance, normalize, specular_radiance, tangent_basis
 
 #: Default specular BSDF: the paper's simplified Torrance–Sparrow lobe.
 DEFAULT_BSDF = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1}
-
-
-def look_at_matrix(origin: Any, target: Any, up: Any = (0.0, 0.0, 1.0)) -> np.ndarray:
-    """Camera-to-world matrix as Mitsuba builds it (camera looks along local +z).
-
-    Columns are ``left``, ``up``, ``forward`` and the origin, so image column 0
-    lies towards ``+left``.
-
-    Returns
-    -------
-    ndarray, shape (4, 4)
-    """
-    origin = np.asarray(origin, dtype=float)
-    forward = normalize(np.asarray(target, dtype=float) - origin)
-    left = normalize(np.cross(np.asarray(up, dtype=float), forward))
-    new_up = np.cross(forward, left)
-    m = np.eye(4)
-    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = left, new_up, forward, origin
-    return m
-
-
-def camera_rays(to_world: np.ndarray, width: int, height: int, fov_x_deg: float) -> np.ndarray:
-    """Unit ray directions through pixel centres, shape ``(H, W, 3)`` (world frame)."""
-    tan_x = np.tan(np.radians(fov_x_deg) / 2.0)
-    tan_y = tan_x * height / width
-    u = (np.arange(width) + 0.5) / width * 2.0 - 1.0  # -1 at the left edge
-    v = 1.0 - (np.arange(height) + 0.5) / height * 2.0  # +1 at the top edge
-    left, up, forward = to_world[:3, 0], to_world[:3, 1], to_world[:3, 2]
-    d = forward + (-u[None, :, None] * tan_x) * left + (v[:, None, None] * tan_y) * up
-    return normalize(d)
 
 
 def _board(origin, rays, centre, normal, size):
@@ -163,7 +135,7 @@ def analytic_capture(
     else:
         raise ValueError(f"shape: expected 'board' or 'sphere', got {shape!r}")
     surface = np.all(np.isfinite(P), axis=-1)
-    intensity = np.broadcast_to(np.asarray(lamp_intensity, dtype=float), (3,)) / 2.0
+    intensity = through_polarizer(np.broadcast_to(np.asarray(lamp_intensity, dtype=float), (3,)))
     Pz = np.where(surface[..., None], P, 0.0)
     Nz = np.where(surface[..., None], N, [0.0, 0.0, 1.0])
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -178,8 +150,7 @@ def analytic_capture(
     else:
         angles = np.asarray(analyzer_angles_deg, dtype=float)
         beta = np.radians(np.broadcast_to(np.asarray(phase_deg, dtype=float), (height, width)))
-        cos2 = np.cos(np.radians(angles)[:, None, None] - beta[None]) ** 2
-        stack = (diff[None] / 2.0 + spec[None] * cos2[..., None]).astype(np.float32)
+        stack = analyzer_stack_ideal(diff, spec, beta, angles).astype(np.float32)
     truth = {
         "lamp_position": [float(x) for x in lamp_position],
         "lamp_intensity": [float(x) for x in np.broadcast_to(np.asarray(lamp_intensity, dtype=float), (3,))],
@@ -198,5 +169,5 @@ def analytic_capture(
         lamp_polarizer_axis=np.array([1.0, 0.0, 0.0]),
         truth=truth,
         extra={"truth_specular": spec.astype(np.float32), "truth_diffuse": diff.astype(np.float32)},
-        meta={"source": "nearlight.synthetic.analytic_capture"},
+        meta={"source": "nearlight.generator.analytic.analytic_capture"},
     )

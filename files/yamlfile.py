@@ -10,7 +10,7 @@ from typing import Any
 
 import yaml
 
-from nearlight.errors import UserError
+from ..errors import UserError
 
 #: Larger files are not scene or sweep files (and would only waste memory).
 MAX_BYTES = 16 << 20

@@ -1,9 +1,10 @@
 """Closed-form reflection models and shading geometry (numpy only).
 
-One implementation of the physics conventions of DESIGN.md, used three times:
-by the generator's tests (rendered radiance against the closed form), by the
-estimator (its forward model), and by the evaluation (re-rendering an estimate,
-Cramér–Rao bounds). Lengths in metres, angles in radians.
+One implementation of the reflectance conventions of ``docs/physics.md``, used
+by every stage: the analytic generator (closed-form captures), the generator's
+tests (rendered radiance against the closed form), the estimator (its forward
+model) and the evaluation (re-rendering an estimate, Cramér–Rao bounds).
+Lengths in metres, angles in radians. Numpy only; imports no pipeline stage.
 
 BSDF parameter dicts are those of ``capture.json``'s ``truth.bsdf``:
 ``{"model": "torrance_sparrow", "ks": [r, g, b], "sigma": s}`` or
@@ -12,6 +13,7 @@ BSDF parameter dicts are those of ``capture.json``'s ``truth.bsdf``:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from typing import Any, NamedTuple
 
@@ -82,6 +84,19 @@ def shading_geometry(P: np.ndarray, N: np.ndarray, camera_position: np.ndarray, 
     return Geometry(view, light, r, cos_r, cos_i, alpha)
 
 
+def torrance_sparrow_lobe(alpha: np.ndarray, sigma: Any) -> np.ndarray:
+    """The Gaussian facet lobe of the paper's Torrance–Sparrow model, ``exp(−α² / 2σ²)``, dimensionless.
+
+    Parameters
+    ----------
+    alpha : ndarray
+        Angle between the normal and the half vector, radians.
+    sigma : float
+        Roughness, radians.
+    """
+    return np.exp(-np.square(alpha) / (2.0 * sigma**2))
+
+
 def torrance_sparrow(cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, *, ks: Any, sigma: float) -> np.ndarray:
     """Simplified Torrance–Sparrow BRDF of the paper (eq. 6), 1/sr.
 
@@ -99,7 +114,7 @@ def torrance_sparrow(cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, *,
     -------
     ndarray, shape (..., 3)
     """
-    lobe = np.exp(-np.square(alpha) / (2.0 * sigma**2)) / (cos_i * cos_r)
+    lobe = torrance_sparrow_lobe(alpha, sigma) / (cos_i * cos_r)
     return lobe[..., None] * np.broadcast_to(np.asarray(ks, dtype=float), (3,))
 
 
@@ -123,6 +138,35 @@ def ward(cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, *, rho_s: Any,
     with np.errstate(invalid="ignore"):
         lobe = np.exp(-np.square(np.tan(alpha)) / alpha_w**2) / (4.0 * np.pi * alpha_w**2 * np.sqrt(cos_i * cos_r))
     return lobe[..., None] * np.broadcast_to(np.asarray(rho_s, dtype=float), (3,))
+
+
+def ward_alpha_from_ts(sigma: float) -> float:
+    """Ward roughness with the lobe width of Torrance–Sparrow ``sigma``: ``α = √2·σ``, radians.
+
+    ``exp(−tan²α/α_w²) ≈ exp(−α²/2σ²)`` for small α.
+    """
+    return math.sqrt(2.0) * sigma
+
+
+def ts_sigma_from_ward(alpha_w: float) -> float:
+    """Torrance–Sparrow σ with the lobe width of Ward roughness ``alpha_w``: ``σ = α/√2``, radians."""
+    return alpha_w / math.sqrt(2.0)
+
+
+def ward_from_torrance_sparrow(sigma: float, ks: np.ndarray) -> tuple[float, np.ndarray]:
+    """Ward ``(alpha, rho_s)`` with a Torrance–Sparrow lobe's width and peak.
+
+    ``alpha = √2·σ`` (:func:`ward_alpha_from_ts`) and ``rho_s = 4π alpha² ks``
+    (equal peak radiance at normal incidence).
+    """
+    alpha = ward_alpha_from_ts(sigma)
+    return alpha, 4.0 * math.pi * alpha**2 * ks
+
+
+def torrance_sparrow_from_ward(alpha_w: float, rho_s: np.ndarray) -> tuple[float, np.ndarray]:
+    """Torrance–Sparrow ``(sigma, ks)`` with a Ward lobe's width and peak: the inverse of
+    :func:`ward_from_torrance_sparrow`."""
+    return ts_sigma_from_ward(alpha_w), rho_s / (4.0 * math.pi * alpha_w**2)
 
 
 def _ts(g: Geometry, bsdf: Mapping[str, Any]) -> np.ndarray:

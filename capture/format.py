@@ -3,7 +3,7 @@
 A capture is a directory holding ``capture.json`` (camera, analyzer angles,
 optional ground truth) and ``capture.exr`` (analyzer stack or separated
 specular image, range image ``P``, optional normals ``N``, extras). The format
-is specified in the README ("Capture format v1"); this module is its reference
+is specified in ``docs/capture-format.md``; this module is its reference
 implementation. The generator writes captures with :func:`write_capture`, the
 estimator reads them with :func:`read_capture`, and so does anything reading a
 real rig's captures.
@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from nearlight.errors import UserError
-from nearlight.jsonable import jsonable
+from ..errors import UserError
+from ..files.jsonable import jsonable
 
 FORMAT = "nearlight-capture/1"
 JSON_NAME = "capture.json"
@@ -398,7 +398,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
         The capture directory to create.
     overwrite : bool, optional
         Replace an existing capture directory at ``path``. Only a capture
-        (:func:`nearlight.outputs.is_capture_dir`: exactly ``capture.json``
+        (:func:`nearlight.files.outputs.is_capture_dir`: exactly ``capture.json``
         and ``capture.exr``) is ever replaced; anything else at ``path`` is
         refused and left untouched.
 
@@ -415,7 +415,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
     """
     import OpenEXR
 
-    from nearlight.outputs import check_capture_out, is_capture_dir
+    from ..files.outputs import check_capture_out, is_capture_dir
 
     path = check_capture_out(path, overwrite=overwrite)
     try:

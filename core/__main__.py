@@ -1,3 +1,0 @@
-from nearlight.cli import main
-
-raise SystemExit(main())

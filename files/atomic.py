@@ -1,0 +1,66 @@
+"""Atomic writes: a file appears whole or not at all (the one implementation).
+
+Used for every file nearlight writes in place of another: sweep results and
+manifests, estimate JSON, figures, render cache entries. Capture folders are
+written the same way, a folder at a time (:func:`nearlight.capture.write_capture`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+
+def atomic_write(path: str | os.PathLike, write: Callable[[str], object], *, suffix: str = ".partial") -> None:
+    """Call ``write(tmp)`` on a temporary sibling of ``path``, then rename it onto ``path``.
+
+    The sibling is ``.<name>.<random><suffix>`` in the same folder (so the
+    rename is atomic); it is removed when ``write`` or the rename fails, also
+    on Ctrl-C and SIGTERM. Only a process killed with SIGKILL can leave one.
+
+    Parameters
+    ----------
+    path : path-like
+        The file to create or replace; its folder must exist.
+    write : callable
+        Writes the whole file at the path it is given (a ``str``).
+    suffix : str, optional
+        Ending of the temporary name (some writers choose the format by it).
+
+    Raises
+    ------
+    OSError
+        From creating, writing or renaming the file; the caller turns it into
+        a :class:`~nearlight.errors.UserError` naming ``path`` where the user chose it.
+    """
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_json(path: str | os.PathLike, doc: object, *, what: str = "there") -> Path:
+    """Write ``doc`` as indented JSON at ``path``, atomically, creating its folder.
+
+    Raises
+    ------
+    UserError
+        ``path`` cannot be written: ``"<path>: cannot write <what> (<reason>)"``.
+    """
+    from ..errors import UserError
+
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(doc, indent=2) + "\n"))
+    except OSError as exc:
+        raise UserError(f"{path}: cannot write {what} ({exc.strerror or exc})") from None
+    return path

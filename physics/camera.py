@@ -1,0 +1,102 @@
+"""The pinhole camera: pixel rays, projection into the image, and the ``saturation: auto`` exposure.
+
+Conventions (``docs/physics.md``), those of Mitsuba's perspective sensor, which
+the generator renders with: the camera-to-world matrix has columns ``left``,
+``up``, ``forward`` and the origin (the camera looks along its local +z); image
+column 0 lies towards ``+left``, row 0 at the top; ``fov_x_deg`` is the
+horizontal field of view; rays pass through pixel centres.
+
+Numpy only; imports no pipeline stage.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .reflectance import normalize
+
+#: Fraction of the full well the brightest clean recorded pixel reaches with ``saturation: auto``.
+AUTO_EXPOSURE = 0.9
+
+
+def look_at_matrix(origin: Any, target: Any, up: Any = (0.0, 0.0, 1.0)) -> np.ndarray:
+    """Camera-to-world matrix as Mitsuba builds it (camera looks along local +z).
+
+    Columns are ``left``, ``up``, ``forward`` and the origin, so image column 0
+    lies towards ``+left``.
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
+    """
+    origin = np.asarray(origin, dtype=float)
+    forward = normalize(np.asarray(target, dtype=float) - origin)
+    left = normalize(np.cross(np.asarray(up, dtype=float), forward))
+    new_up = np.cross(forward, left)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = left, new_up, forward, origin
+    return m
+
+
+def camera_rays(to_world: np.ndarray, width: int, height: int, fov_x_deg: float) -> np.ndarray:
+    """Unit ray directions through pixel centres, shape ``(H, W, 3)`` (world frame)."""
+    tan_x = np.tan(np.radians(fov_x_deg) / 2.0)
+    tan_y = tan_x * height / width
+    u = (np.arange(width) + 0.5) / width * 2.0 - 1.0  # -1 at the left edge
+    v = 1.0 - (np.arange(height) + 0.5) / height * 2.0  # +1 at the top edge
+    left, up, forward = to_world[:3, 0], to_world[:3, 1], to_world[:3, 2]
+    d = forward + (-u[None, :, None] * tan_x) * left + (v[:, None, None] * tan_y) * up
+    return normalize(d)
+
+
+def project(d: np.ndarray, to_world: np.ndarray, width: int, height: int, fov_x_deg: float
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Where world-frame directions from the camera land in the image: the inverse of :func:`camera_rays`.
+
+    Parameters
+    ----------
+    d : ndarray, shape (..., 3)
+        Directions from the centre of projection (any length), world frame.
+    to_world : ndarray, shape (4, 4)
+    width, height : int
+    fov_x_deg : float
+
+    Returns
+    -------
+    col, row : ndarray, shape (...)
+        Image coordinates in pixels (pixel centres at ``k + 0.5``); meaningless where ``z ≤ 0``.
+    z : ndarray, shape (...)
+        Depth along the viewing direction (> 0 in front of the camera).
+    """
+    W, H = width, height
+    R = np.asarray(to_world, dtype=float)[:3, :3]
+    local = d @ R  # R^T d, row-wise
+    z = local[..., 2]
+    t = np.tan(np.radians(fov_x_deg) / 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        col = (1 - local[..., 0] / z / t) * W / 2
+        row = (1 - local[..., 1] / z / (t * H / W)) * H / 2
+    return col, row, z
+
+
+def auto_saturation(*images: np.ndarray) -> float:
+    """The ``saturation: auto`` exposure: radiance that fills the full well, from the clean images.
+
+    The brightest clean recorded pixel (over all ``images``, NaN ignored) lands
+    at :data:`AUTO_EXPOSURE` (90 %) of the full well, an exposure a careful
+    operator would pick; 1 when nothing is brighter than 0.
+
+    Parameters
+    ----------
+    *images : ndarray
+        The clean images the camera records (analyzer stack, separated images).
+
+    Returns
+    -------
+    float
+        Radiance, the images' units.
+    """
+    peak = max(float(np.nanmax(v)) for v in images)
+    return peak / AUTO_EXPOSURE if peak > 0 else 1.0

@@ -1,0 +1,176 @@
+"""Polarization: the analyzer model, the Stokes fit, separation, DoLP/AoLP, the lamp polarizer.
+
+The conventions of ``docs/physics.md``, each written once. Through an ideal
+linear analyzer at angle θ (counter-clockwise from the image's rightward
+horizontal) a pixel sees
+
+- ``I(θ) = ½ (S0 + S1 cos 2θ + S2 sin 2θ)`` (Stokes form, :func:`analyzer_stack`), or
+  in ``ideal`` mode
+- ``I(θ) = Id/2 + Is·cos²(θ − β)`` (paper §2.3, :func:`analyzer_stack_ideal`),
+
+the same model: ``S0 = Id + Is``, ``sqrt(S1² + S2²) = Is``, ``β = ½ atan2(S2, S1)``.
+So ``Imax − Imin = sqrt(S1² + S2²) = Is`` (specular) and ``2·Imin = S0 − Is =
+Id`` (diffuse). Note: polanalyser's ``cvtStokesToDiffuse`` returns Imin, not
+2·Imin.
+
+The lamp sits behind an ideal linear polarizer: unpolarized, it passes half
+its radiant intensity (:func:`through_polarizer`).
+
+Numpy only; imports no pipeline stage.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..errors import UserError
+
+#: Fraction of an unpolarized lamp's radiant intensity an ideal linear polarizer passes.
+POLARIZER_TRANSMISSION = 0.5
+
+
+def through_polarizer(intensity: Any) -> np.ndarray:
+    """Radiant intensity reaching the scene from a lamp behind an ideal linear polarizer, W/sr.
+
+    Parameters
+    ----------
+    intensity : array_like
+        The bare lamp's radiant intensity (per channel), W/sr.
+
+    Returns
+    -------
+    ndarray, same shape
+        ``intensity / 2``: the polarizer halves unpolarized light.
+    """
+    return np.asarray(intensity, dtype=float) / 2.0
+
+
+# --------------------------------------------------------------------------- the analyzer model
+
+
+def analyzer_matrix(angles_deg: Any) -> np.ndarray:
+    """``[K, 3]`` rows ``½ (1, cos 2θ, sin 2θ)``: maps ``(S0, S1, S2)`` to the K analyzer images."""
+    two_theta = 2.0 * np.radians(np.asarray(angles_deg, dtype=float))
+    return 0.5 * np.stack([np.ones_like(two_theta), np.cos(two_theta), np.sin(two_theta)], axis=1)
+
+
+def analyzer_stack(stokes: np.ndarray, angles_deg: Any) -> np.ndarray:
+    """Ideal-analyzer images ``½ (S0 + S1 cos 2θ + S2 sin 2θ)``.
+
+    Parameters
+    ----------
+    stokes : ndarray, shape (3, H, W, C)
+        S0, S1, S2 (radiance; x axis of the Stokes frame = image horizontal).
+    angles_deg : array_like, shape (K,)
+        Analyzer angles, degrees.
+
+    Returns
+    -------
+    ndarray, shape (K, H, W, C)
+    """
+    t = np.radians(np.asarray(angles_deg, float))[:, None, None, None]
+    return 0.5 * (stokes[0] + stokes[1] * np.cos(2 * t) + stokes[2] * np.sin(2 * t))
+
+
+def analyzer_stack_ideal(diffuse: np.ndarray, specular: np.ndarray, phase: np.ndarray, angles_deg: Any) -> np.ndarray:
+    """Ideal-analyzer images ``Id/2 + Is·cos²(θ − β)`` (paper §2.3, ``ideal`` mode).
+
+    Parameters
+    ----------
+    diffuse, specular : ndarray, shape (H, W, C)
+        Id and Is, radiance.
+    phase : ndarray, shape (H, W)
+        β, the analyzer angle of maximum specular transmission, radians.
+    angles_deg : array_like, shape (K,)
+        Analyzer angles θ, degrees.
+
+    Returns
+    -------
+    ndarray, shape (K, H, W, C), float64
+    """
+    cos2 = np.cos(np.radians(np.asarray(angles_deg, dtype=float))[:, None, None] - phase[None]) ** 2
+    return diffuse[None] / 2.0 + specular[None] * cos2[..., None]
+
+
+# --------------------------------------------------------------------------- its inversion
+
+
+def linear_stokes(stack: np.ndarray, angles_deg: Any) -> np.ndarray:
+    """Per-pixel least-squares ``S0, S1, S2`` of an analyzer stack: the one Stokes fit.
+
+    Parameters
+    ----------
+    stack : ndarray, shape (K, ...)
+        Radiance through the analyzer at each angle.
+    angles_deg : array_like, shape (K,)
+        Analyzer angles, degrees; at least 3 distinct (mod 180°).
+
+    Returns
+    -------
+    ndarray, shape (3, ...)
+
+    Raises
+    ------
+    UserError
+        Fewer than 3 distinct angles (mod 180°): the fit is undetermined.
+    """
+    A = analyzer_matrix(angles_deg)
+    if np.linalg.matrix_rank(A) < 3:
+        raise UserError(
+            "analyzer_angles_deg: separating polarization needs at least 3 distinct angles (mod 180°), "
+            f"got {list(np.asarray(angles_deg).tolist())}"
+        )
+    stack = np.asarray(stack, dtype=float)
+    return (np.linalg.pinv(A) @ stack.reshape(len(A), -1)).reshape(3, *stack.shape[1:])
+
+
+def linear_amplitude(S1: np.ndarray, S2: np.ndarray) -> np.ndarray:
+    """``Imax − Imin = sqrt(S1² + S2²)``: the specular radiance Is in ``ideal`` mode."""
+    return np.hypot(S1, S2)
+
+
+def separate_stokes(S0: np.ndarray, S1: np.ndarray, S2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Specular and diffuse radiance from linear Stokes parameters (paper §2.3).
+
+    Returns
+    -------
+    specular, diffuse : ndarray
+        ``Imax − Imin = sqrt(S1² + S2²)`` and ``2·Imin = S0 − sqrt(S1² + S2²)``.
+    """
+    amplitude = linear_amplitude(S1, S2)
+    return amplitude, S0 - amplitude
+
+
+def separate_extrema(imax: np.ndarray, imin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Specular and diffuse radiance from the brightest and darkest analyzer images (paper §2.3).
+
+    Returns
+    -------
+    specular, diffuse : ndarray
+        ``Imax − Imin`` and ``2·Imin``.
+    """
+    return imax - imin, 2.0 * imin
+
+
+def dolp(S0: np.ndarray, amplitude: np.ndarray) -> np.ndarray:
+    """Degree of linear polarization ``sqrt(S1² + S2²) / S0``, dimensionless; 0 where ``S0 ≤ 0``.
+
+    Parameters
+    ----------
+    S0 : ndarray
+        Total radiance.
+    amplitude : ndarray, same shape
+        ``sqrt(S1² + S2²)`` (:func:`linear_amplitude`).
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(S0 > 0, amplitude / S0, 0.0)
+
+
+def aolp(S1: np.ndarray, S2: np.ndarray) -> np.ndarray:
+    """Angle of linear polarization ``½ atan2(S2, S1)``, radians in (−π/2, π/2], from the image horizontal.
+
+    In ``ideal`` mode this is β, the analyzer angle of maximum transmission.
+    """
+    return 0.5 * np.arctan2(S2, S1)
