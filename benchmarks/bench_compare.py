@@ -80,7 +80,8 @@ def main() -> None:
     args = parser.parse_args()
 
     from nearlight.evaluation.compare import compare_frames
-    from nearlight.evaluation.engine import code_version, task_payload, task_row
+    from nearlight.evaluation.engine import task_payload, task_row
+    from nearlight.evaluation.environment import code_version
     from nearlight.evaluation.store import read_results
     from nearlight.evaluation.sweep import load_sweep
 

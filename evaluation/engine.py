@@ -16,13 +16,13 @@ import concurrent.futures as cf
 import dataclasses
 import functools
 import multiprocessing
-import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+from .environment import code_version
 from .store import MANIFEST, ResultStore, read_manifest, set_aside_damaged_parts
 from .sweep import Sweep, Task
 from .tasks import run_task
@@ -42,26 +42,6 @@ class RunSummary:
     failed: int
     seconds: float
     complete: bool
-
-
-@functools.lru_cache(maxsize=1)
-def code_version() -> str:
-    """``<package version>+g<commit>[.dirty]`` of the running nearlight (commit when in a git checkout)."""
-    from .. import __version__
-
-    here = Path(__file__).resolve().parent
-    try:
-        commit = subprocess.run(
-            ["git", "-C", str(here), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10
-        ).stdout.strip()
-        if commit and subprocess.run(
-            ["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True, text=True, timeout=10,
-        ).stdout.strip():
-            commit += ".dirty"
-    except (OSError, subprocess.SubprocessError):
-        commit = ""
-    return f"{__version__}+g{commit}" if commit else __version__
 
 
 def task_payload(task: Task, sweep: Sweep) -> dict[str, Any]:

@@ -11,15 +11,38 @@ will choose, :func:`nearlight.generator.llvm.planned_variant`);
 
 from __future__ import annotations
 
+import functools
 import platform
+import subprocess
 from collections.abc import Mapping
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 from typing import Any
 
 #: Distributions whose versions can change a number in a result row.
 PACKAGES = ("nearlight", "mitsuba", "drjit", "numpy", "scipy", "pandas", "OpenEXR", "pyarrow", "threadpoolctl")
 #: CPU features that change Dr.Jit's generated code (and so a render's last bits).
 CPU_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512er")
+
+
+@functools.lru_cache(maxsize=1)
+def code_version() -> str:
+    """``<package version>+g<commit>[.dirty]`` of the running nearlight (commit when in a git checkout)."""
+    from .. import __version__
+
+    here = Path(__file__).resolve().parent
+    try:
+        commit = subprocess.run(
+            ["git", "-C", str(here), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10
+        ).stdout.strip()
+        if commit and subprocess.run(
+            ["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True, text=True, timeout=10,
+        ).stdout.strip():
+            commit += ".dirty"
+    except (OSError, subprocess.SubprocessError):
+        commit = ""
+    return f"{__version__}+g{commit}" if commit else __version__
 
 
 def _cpu() -> tuple[str, list[str]]:
@@ -49,7 +72,6 @@ def collect() -> dict[str, Any]:
         :data:`CPU_FLAGS` present), ``mitsuba_variant`` (what the generator
         will render with), ``packages`` (name -> version, None when absent).
     """
-    from .engine import code_version
     from ..generator.llvm import planned_variant
 
     model, flags = _cpu()

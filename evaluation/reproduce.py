@@ -381,7 +381,7 @@ def reproduce(out: str | Path, *, quick: bool = False, progress: bool = True) ->
         if name != "near_vs_distant":
             run.bar.update()
     run.bar.close()
-    from .engine import code_version
+    from .environment import code_version
     from .environment import collect
 
     doc = {
