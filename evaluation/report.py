@@ -119,10 +119,7 @@ def plot_axis(df: pd.DataFrame, axis: str, path: Path) -> None:
         ax.grid(alpha=0.3)
     axs[0].legend(fontsize=8)
     fig.suptitle(f"error vs {axis}: median (line), 90th percentile (band)")
-    try:
-        save_png(fig, path, dpi=110)
-    finally:
-        plt.close(fig)
+    save_png(fig, path, dpi=110)
 
 
 def report_files(varied: list[str]) -> dict[str, str]:

@@ -318,11 +318,7 @@ def _distance_plot(rows: list[dict[str, Any]], path: Path) -> Path:
     axes[0].legend()
     fig.suptitle("Near vs. distant: the paper's motivation (Fig. 1), measured")
     fig.tight_layout()
-    try:
-        save_png(fig, path)
-    finally:
-        plt.close(fig)
-    return path
+    return save_png(fig, path)
 
 
 EXPERIMENTS: dict[str, Callable[[_Run], dict[str, Any]]] = {

@@ -105,25 +105,26 @@ def panel_grid(
     if title:
         fig.suptitle(title, fontsize=title_size)
     fig.tight_layout()
-    try:
-        save_png(fig, path)
-    finally:
-        plt.close(fig)
-    return path
+    return save_png(fig, path)
 
 
 def save_png(fig: Any, path: str | os.PathLike, *, dpi: int = 100) -> Path:
-    """Save a matplotlib figure as PNG at ``path``, atomically (a temporary sibling renamed into place).
+    """Save a matplotlib figure as PNG at ``path``, atomically (a temporary sibling renamed into
+    place), and close it (every caller is done with the figure once it is on disk).
 
     Raises
     ------
     UserError
         ``path`` cannot be written.
     """
+    import matplotlib.pyplot as plt
+
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format="png"))
     except OSError as exc:
         raise UserError(f"{path}: cannot write the figure ({exc.strerror or exc})") from None
+    finally:
+        plt.close(fig)
     return path
