@@ -27,7 +27,10 @@ CPU_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512er")
 
 @functools.lru_cache(maxsize=1)
 def code_version() -> str:
-    """``<package version>+g<commit>[.dirty]`` of the running nearlight (commit when in a git checkout)."""
+    """``<package version>+g<commit>[.dirty]`` of the running nearlight (commit when in a git checkout).
+
+    ``.dirty`` when a tracked file outside ``reports/`` differs from the commit.
+    """
     from .. import __version__
 
     here = Path(__file__).resolve().parent
@@ -36,7 +39,10 @@ def code_version() -> str:
             ["git", "-C", str(here), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10
         ).stdout.strip()
         if commit and subprocess.run(
-            ["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
+            # reports/ holds outputs, not code: regenerating a committed report in place
+            # (its old files deleted first) must not stamp its own rows ".dirty"
+            ["git", "-C", str(here.parent), "status", "--porcelain", "--untracked-files=no",
+             "--", ".", ":(exclude)reports"],
             capture_output=True, text=True, timeout=10,
         ).stdout.strip():
             commit += ".dirty"
