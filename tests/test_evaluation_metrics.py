@@ -9,7 +9,7 @@ import pytest
 
 from nearlight.evaluation import metrics
 from nearlight.evaluation.crlb import crlb, specular_crlb, specular_variance_factor, stack_phase
-from nearlight.evaluation.tasks import METRICS, score, truth_estimate
+from nearlight.evaluation.metrics import METRICS, score, truth_estimate
 from nearlight.physics.reflectance import specular_radiance, shading_geometry
 from nearlight.generator.analytic import analytic_capture
 
