@@ -49,10 +49,11 @@ FRACTIONS = (0.0005, 0.001, 0.0025, 0.005, 0.01, 0.02)
 def _run(payload: dict, renderer: Any, cache_dir: str, fractions: tuple[float, ...]) -> tuple[dict, dict]:
     """One task's row, and for ``full`` the rows of its estimate moved along the ray by each fraction."""
     from nearlight.evaluation.planted import moved_along_ray
-    from nearlight.evaluation.tasks import _noisy, run_method, score
+    from nearlight.evaluation.metrics import score
+    from nearlight.evaluation.tasks import noisy_capture, run_method
 
     clean = renderer.render(payload["scene"], cache_dir=Path(cache_dir))
-    capture = _noisy(clean, payload)
+    capture = noisy_capture(clean, payload)
     row: dict[str, Any] = {"status": "ok", "error": ""}
     try:
         est = run_method(capture, payload["method_spec"], payload["options"])

@@ -1,4 +1,9 @@
-"""Re-synthesis of the specular image from an estimate (for RMSE and plots)."""
+"""Re-synthesis of the specular image from an estimate, with the estimator's own forward model.
+
+For plots (``nearlight estimate --plot``) and users' checks. The benchmark does
+not grade with it: :mod:`nearlight.evaluation.resynthesis` re-synthesises
+independently, so that a grade shares no code with the model it grades.
+"""
 
 from __future__ import annotations
 

@@ -50,7 +50,7 @@ import pandas as pd
 from ..errors import UserError
 from ..files.atomic import write_json
 from .store import read_environments, read_manifest, read_results
-from .tasks import INFO_COLUMNS, METRICS
+from .metrics import INFO_COLUMNS, METRICS
 
 #: Metrics compared (``runtime_s`` only on request; ``specular_rmse`` is in radiance units whose scale
 #: differs per scene, ``specular_rmse_rel`` carries the same information scale-free).
@@ -83,7 +83,7 @@ class Check:
     config : dict
         Axis column -> value.
     metric : str
-        A :data:`~nearlight.evaluation.tasks.METRICS` column, or ``"failures"``.
+        A :data:`~nearlight.evaluation.metrics.METRICS` column, or ``"failures"``.
     kind : str
         ``"exact"`` or ``"pooled"``.
     n_base, n_new : int

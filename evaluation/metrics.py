@@ -1,6 +1,7 @@
-"""Error metrics: small pure functions, one number each, units in the docstring.
+"""Scoring: the error metrics, their column registry, the truth they compare with, and :func:`score`.
 
-Every function takes the estimate first and the truth second and returns a
+Every metric is a small pure function, one number each, units in the
+docstring. It takes the estimate first and the truth second and returns a
 float; feeding the truth as the estimate gives exactly zero (tested). Where the
 problem leaves something free, the metric removes it explicitly: Ks is only
 known up to the lamp's intensity, so :func:`ks_relative_error` fits the one
@@ -11,20 +12,67 @@ lamp's mirror reflection reaches the camera (smallest half-vector angle α over
 the surface pixels, :func:`highlight_point`); distances and directions of the
 lamp are measured from it, as the paper measures ``t`` along the ray from the
 peak pixel.
+
+Degenerate inputs: a metric is a finite float or NaN, never ±inf and never an
+exception. NaN means "undefined here": a non-finite (NaN or ±inf) estimate or
+truth, a true lamp on the point distances are measured from (no direction, no
+relative distance), a true σ ≤ 0 (no relative error), a true Ks of zero, an
+empty mask, a truth image without a positive peak. Each function's docstring
+names its cases; ``tests/test_evaluation_metrics.py`` runs every metric on
+``[-1, 0, 1, -inf, inf, nan]`` inputs, and on ±1e308, whose differences
+overflow.
+
+:func:`score` grades an estimate's specular image with the independent
+re-synthesis of :mod:`nearlight.evaluation.resynthesis`, not with the
+estimator's own forward model (see that module for why).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
-from ..physics.reflectance import shading_geometry
+from ..physics.polarization import through_polarizer
+from ..physics.reflectance import shading_geometry, ts_sigma_from_ward
+from .resynthesis import resynthesize
+
+#: Metric columns (all "lower is better"), in table order, with their units.
+METRICS: dict[str, str] = {
+    "lamp_position_error_m": "m",
+    "lamp_position_error_pct": "% of lamp distance",
+    "direction_error_deg": "deg",
+    "distance_error_m": "m",
+    "sigma_rel_error": "relative",
+    "ks_rel_error": "relative (after global scale)",
+    "specular_rmse": "radiance",
+    "specular_rmse_rel": "relative to peak",
+    "runtime_s": "s",
+}
+#: Other numeric columns of a row (not compared as regressions).
+INFO_COLUMNS = ("distance_signed_m", "lamp_distance_true_m", "sigma_truth", "crlb_lamp_m", "crlb_sigma_rel")
 
 
 def _vec(x: Any) -> np.ndarray:
     return np.asarray(x, dtype=float).reshape(3)
+
+
+def _finite_or_nan(x: float) -> float:
+    """``x`` as a float, NaN when it is ±inf or NaN."""
+    x = float(x)
+    return x if math.isfinite(x) else math.nan
+
+
+def _all_finite(*arrays: np.ndarray) -> bool:
+    return all(bool(np.all(np.isfinite(a))) for a in arrays)
+
+
+def _overflow_is_inf() -> np.errstate:
+    """Finite inputs near the float64 limit may overflow to ±inf (or inf − inf = NaN) on the way: no
+    warning, the result goes through :func:`_finite_or_nan`."""
+    return np.errstate(over="ignore", invalid="ignore")
 
 
 def lamp_position_error(est: Any, true: Any) -> float:
@@ -34,8 +82,17 @@ def lamp_position_error(est: Any, true: Any) -> float:
     ----------
     est, true : array_like, shape (3,)
         Lamp positions, metres.
+
+    Returns
+    -------
+    float
+        Metres; NaN when either position is not finite.
     """
-    return float(np.linalg.norm(_vec(est) - _vec(true)))
+    e, t = _vec(est), _vec(true)
+    if not _all_finite(e, t):
+        return math.nan
+    with _overflow_is_inf():
+        return _finite_or_nan(np.linalg.norm(e - t))
 
 
 def lamp_position_error_pct(est: Any, true: Any, *, origin: Any) -> float:
@@ -46,8 +103,21 @@ def lamp_position_error_pct(est: Any, true: Any, *, origin: Any) -> float:
     est, true, origin : array_like, shape (3,)
         Estimated lamp, true lamp and the point distances are measured from
         (the highlight point), metres.
+
+    Returns
+    -------
+    float
+        Percent; NaN when a point is not finite or the true lamp is at
+        ``origin`` (a percentage of a zero distance is undefined).
     """
-    return 100.0 * lamp_position_error(est, true) / float(np.linalg.norm(_vec(true) - _vec(origin)))
+    e, t, o = _vec(est), _vec(true), _vec(origin)
+    if not _all_finite(e, t, o):
+        return math.nan
+    with _overflow_is_inf():
+        reference = float(np.linalg.norm(t - o))
+    if reference == 0.0:
+        return math.nan
+    return _finite_or_nan(100.0 * lamp_position_error(e, t) / reference)
 
 
 def direction_error_deg(est: Any, true: Any, *, origin: Any) -> float:
@@ -57,25 +127,61 @@ def direction_error_deg(est: Any, true: Any, *, origin: Any) -> float:
     ----------
     est, true, origin : array_like, shape (3,)
         Metres. ``origin`` is the highlight point.
+
+    Returns
+    -------
+    float
+        Degrees in [0, 180]; NaN when a point is not finite or either lamp is
+        at ``origin`` (it has no direction from there).
     """
-    a, b = _vec(est) - _vec(origin), _vec(true) - _vec(origin)
-    # atan2 of |a x b| and a.b is accurate near 0 degrees, where arccos is not.
-    return math.degrees(math.atan2(float(np.linalg.norm(np.cross(a, b))), float(np.dot(a, b))))
+    e, t, o = _vec(est), _vec(true), _vec(origin)
+    if not _all_finite(e, t, o):
+        return math.nan
+    with _overflow_is_inf():
+        a, b = e - o, t - o
+        if not (np.any(a) and np.any(b)):
+            return math.nan
+        # atan2 of |a x b| and a.b is accurate near 0 degrees, where arccos is not.
+        return _finite_or_nan(math.degrees(math.atan2(float(np.linalg.norm(np.cross(a, b))), float(np.dot(a, b)))))
 
 
 def distance_error_signed(est: Any, true: Any, *, origin: Any) -> float:
-    """Estimated minus true lamp distance from ``origin``, metres (positive: too far)."""
-    return float(np.linalg.norm(_vec(est) - _vec(origin)) - np.linalg.norm(_vec(true) - _vec(origin)))
+    """Estimated minus true lamp distance from ``origin``, metres (positive: too far).
+
+    Defined for a true lamp at ``origin`` too (then it is the estimate's
+    distance); NaN when a point is not finite.
+    """
+    e, t, o = _vec(est), _vec(true), _vec(origin)
+    if not _all_finite(e, t, o):
+        return math.nan
+    with _overflow_is_inf():
+        return _finite_or_nan(np.linalg.norm(e - o) - np.linalg.norm(t - o))
 
 
 def distance_error(est: Any, true: Any, *, origin: Any) -> float:
-    """Absolute error of the lamp's distance from ``origin``, metres."""
+    """Absolute error of the lamp's distance from ``origin``, metres (NaN as :func:`distance_error_signed`)."""
     return abs(distance_error_signed(est, true, origin=origin))
 
 
 def sigma_relative_error(est: float, true: float) -> float:
-    """``|σ_est − σ_true| / σ_true``, dimensionless (NaN when ``true`` is NaN)."""
-    return abs(float(est) - float(true)) / float(true)
+    """``|σ_est − σ_true| / σ_true``, dimensionless.
+
+    Parameters
+    ----------
+    est, true : float
+        Estimated and true roughness σ, radians.
+
+    Returns
+    -------
+    float
+        NaN when either is not finite, or when ``true ≤ 0`` (a relative error
+        of a zero roughness, a perfect mirror, is undefined; the absolute σ
+        is in the row's ``sigma_truth`` beside it).
+    """
+    e, t = float(est), float(true)
+    if not (math.isfinite(e) and math.isfinite(t)) or t <= 0.0:
+        return math.nan
+    return _finite_or_nan(abs(e - t) / t)
 
 
 def ks_relative_error(est: Any, true: Any) -> float:
@@ -90,11 +196,20 @@ def ks_relative_error(est: Any, true: Any) -> float:
     ----------
     est, true : array_like, shape (3,)
         Per-channel Ks (any common units).
+
+    Returns
+    -------
+    float
+        NaN when either is not finite or ``true`` is zero (no colour to
+        compare with).
     """
     e, t = _vec(est), _vec(true)
-    ee = float(e @ e)
-    s = float(e @ t) / ee if ee > 0 else 0.0
-    return float(np.linalg.norm(s * e - t) / np.linalg.norm(t))
+    if not _all_finite(e, t) or not np.any(t):
+        return math.nan
+    with _overflow_is_inf():
+        ee = float(e @ e)
+        s = float(e @ t) / ee if ee > 0 else 0.0
+        return _finite_or_nan(np.linalg.norm(s * e - t) / np.linalg.norm(t))
 
 
 def specular_rmse(rendered: np.ndarray, observed: np.ndarray, mask: np.ndarray) -> float:
@@ -106,9 +221,33 @@ def specular_rmse(rendered: np.ndarray, observed: np.ndarray, mask: np.ndarray) 
         Re-rendered and true specular radiance.
     mask : ndarray of bool, shape (H, W)
         Pixels to compare (the surface).
+
+    Returns
+    -------
+    float
+        Radiance; NaN when ``mask`` is empty or a compared pixel is not finite
+        (e.g. the NaN image of a non-finite estimate).
     """
-    d = np.asarray(rendered, dtype=float)[mask] - np.asarray(observed, dtype=float)[mask]
-    return float(np.sqrt(np.mean(np.square(d))))
+    r, o = np.asarray(rendered, dtype=float)[mask], np.asarray(observed, dtype=float)[mask]
+    if r.size == 0 or not _all_finite(r, o):
+        return math.nan
+    with _overflow_is_inf():
+        return _finite_or_nan(np.sqrt(np.mean(np.square(r - o))))
+
+
+def specular_rmse_relative(rendered: np.ndarray, observed: np.ndarray, mask: np.ndarray) -> float:
+    """:func:`specular_rmse` divided by the largest observed radiance over ``mask``, dimensionless.
+
+    Parameters as :func:`specular_rmse`. NaN where it is NaN, or when the
+    observed image has no positive finite peak over ``mask`` (nothing to be
+    relative to).
+    """
+    rmse = specular_rmse(rendered, observed, mask)
+    seen = np.asarray(observed, dtype=float)[mask]
+    peak = float(np.max(seen)) if seen.size else math.nan
+    if math.isnan(rmse) or not (math.isfinite(peak) and peak > 0.0):
+        return math.nan
+    return _finite_or_nan(rmse / peak)
 
 
 def highlight_point(P: np.ndarray, N: np.ndarray, camera_position: Any, lamp_position: Any) -> np.ndarray:
@@ -119,12 +258,140 @@ def highlight_point(P: np.ndarray, N: np.ndarray, camera_position: Any, lamp_pos
     P, N : ndarray, shape (H, W, 3)
         Surface points (NaN where no surface) and unit normals.
     camera_position, lamp_position : array_like, shape (3,)
+        Metres.
 
     Returns
     -------
     ndarray, shape (3,)
+        Metres; all NaN when no surface point sees both the lamp and the
+        camera (no highlight, so nothing to measure from).
     """
     mask = np.all(np.isfinite(P), axis=-1) & np.all(np.isfinite(N), axis=-1)
-    g = shading_geometry(P[mask], N[mask], _vec(camera_position), _vec(lamp_position))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        g = shading_geometry(P[mask], N[mask], _vec(camera_position), _vec(lamp_position))
     alpha = np.where((g.cos_i > 0) & (g.cos_r > 0), g.alpha, np.inf)
+    if not np.any(np.isfinite(alpha)):
+        return np.full(3, np.nan)
     return np.asarray(P[mask][int(np.argmin(alpha))], dtype=float)
+
+
+def truth_sigma(bsdf: Mapping[str, Any]) -> float:
+    """The σ an estimate is compared with, radians.
+
+    Torrance–Sparrow: its ``sigma``; Ward: the small-angle equivalent
+    ``alpha / √2`` (:func:`~nearlight.physics.reflectance.ts_sigma_from_ward`);
+    any other model: NaN (no σ to compare with).
+    """
+    model = bsdf.get("model")
+    if model == "torrance_sparrow":
+        return float(bsdf["sigma"])
+    if model == "ward":
+        return ts_sigma_from_ward(float(bsdf["alpha"]))
+    return math.nan
+
+
+def truth_ks(bsdf: Mapping[str, Any]) -> np.ndarray | None:
+    """The specular colour an estimate's Ks is compared with (up to scale): ``ks`` or ``rho_s``.
+
+    Returns
+    -------
+    ndarray, shape (3,), or None
+        Per channel, in the BSDF's units; None when the BSDF has neither key.
+    """
+    for key in ("ks", "rho_s"):
+        if key in bsdf:
+            return np.broadcast_to(np.asarray(bsdf[key], dtype=float), (3,))
+    return None
+
+
+def truth_estimate(capture: Any) -> Any:
+    """The oracle estimate of a Torrance–Sparrow capture, in the estimators' convention.
+
+    Estimators report Ks with the lamp intensity reaching the surface folded in
+    (``ks · I_lamp / 2`` behind the ideal polarizer, ``docs/physics.md``), so
+    that the unit-intensity re-render matches the observed specular image.
+
+    Parameters
+    ----------
+    capture : Capture
+        With ``truth["lamp_position"]`` (m), ``truth["bsdf"]`` and
+        ``truth["lamp_intensity"]`` (W/sr per channel; 2 when absent).
+
+    Returns
+    -------
+    Estimate
+        ``method="truth"``, a point lamp: every metric of :func:`score` is 0
+        against a Torrance–Sparrow truth (up to the truth image's float32
+        storage).
+    """
+    truth = capture.truth
+    bsdf = truth["bsdf"]
+    intensity = np.broadcast_to(np.asarray(truth.get("lamp_intensity", 2.0), dtype=float), (3,))
+    from ..estimator import Estimate
+
+    return Estimate(
+        method="truth",
+        lamp_position=np.asarray(truth["lamp_position"], dtype=float),
+        ks=truth_ks(bsdf) * through_polarizer(intensity),
+        sigma=truth_sigma(bsdf),
+    )
+
+
+def score(capture: Any, estimate: Any) -> dict[str, float]:
+    """Metric columns of ``estimate`` against the truth of the noise-free ``capture``.
+
+    Parameters
+    ----------
+    capture : Capture
+        Noise-free capture with ``truth``, ``P``, ``N`` and
+        ``extra["truth_specular"]`` (``(H, W, 3)`` radiance).
+    estimate : Estimate
+        Its specular image is re-synthesised for grading by
+        :func:`nearlight.evaluation.resynthesis.resynthesize`, an
+        implementation independent of the estimator's forward model; it
+        knows distant-light estimates too.
+
+    Returns
+    -------
+    dict of str to float
+        The :data:`METRICS` columns (but ``runtime_s``) and ``distance_signed_m``,
+        ``lamp_distance_true_m`` (m), ``sigma_truth`` (rad). Each is finite or
+        NaN; NaN rules:
+
+        - a σ the estimator declares undetermined
+          (``estimate.diagnostics["undetermined"]``, e.g. ``distant`` on a
+          plane) gets no σ error: any value fits the data;
+        - a NaN or ±inf in the estimate's ``lamp_position`` makes every lamp
+          metric NaN, and both specular RMSEs for a point lamp (a distant
+          estimate's image comes from its directions); in ``ks`` or
+          ``sigma``, their own error and both specular RMSEs (the
+          re-synthesised image is NaN);
+        - a true lamp at the highlight point: percentage and direction
+          errors NaN; no highlight at all (no surface point sees both lamp
+          and camera): every metric measured from it NaN;
+        - a true σ ≤ 0: σ error NaN; no Ks in the truth BSDF: Ks error NaN.
+    """
+    truth = capture.truth
+    bsdf = truth["bsdf"]
+    lamp_true = np.asarray(truth["lamp_position"], dtype=float)
+    lamp_est = np.asarray(estimate.lamp_position, dtype=float)
+    origin = highlight_point(capture.P, capture.N, capture.camera.position, lamp_true)
+    sigma_true = truth_sigma(bsdf)
+    ks_true = truth_ks(bsdf)
+    observed = capture.extra["truth_specular"]
+    mask = capture.surface_mask
+    rendered = resynthesize(capture, estimate)
+    return {
+        "lamp_position_error_m": lamp_position_error(lamp_est, lamp_true),
+        "lamp_position_error_pct": lamp_position_error_pct(lamp_est, lamp_true, origin=origin),
+        "direction_error_deg": direction_error_deg(lamp_est, lamp_true, origin=origin),
+        "distance_error_m": distance_error(lamp_est, lamp_true, origin=origin),
+        "sigma_rel_error": math.nan if "sigma" in estimate.diagnostics.get("undetermined", ())
+        else sigma_relative_error(estimate.sigma, sigma_true),
+        "ks_rel_error": math.nan if ks_true is None else ks_relative_error(estimate.ks, ks_true),
+        "specular_rmse": specular_rmse(rendered, observed, mask),
+        "specular_rmse_rel": specular_rmse_relative(rendered, observed, mask),
+        "distance_signed_m": distance_error_signed(lamp_est, lamp_true, origin=origin),
+        "lamp_distance_true_m": _finite_or_nan(np.linalg.norm(lamp_true - origin)),
+        "sigma_truth": sigma_true,
+    }

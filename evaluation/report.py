@@ -21,7 +21,7 @@ import pandas as pd
 
 from ..errors import UserError
 from .store import MANIFEST, read_manifest, read_results
-from .tasks import METRICS
+from .metrics import METRICS
 from ..files.figures import save_png
 from ..files.outputs import check_files_in, make_folder
 

@@ -2,9 +2,9 @@
 
 :func:`run_task` runs in a worker process (or a Dask worker) and returns one
 tidy row: never raises for a failing estimator or render, the row then carries
-``status="error"`` and the message. :func:`score` turns an estimate and the
-noise-free capture into the metric columns; :func:`truth_estimate` is the
-estimate an oracle would return (every error zero).
+``status="error"`` and the message. The scoring itself (the metric columns,
+:func:`~nearlight.evaluation.metrics.score`, the truth it compares with) lives
+in :mod:`nearlight.evaluation.metrics`; this module only runs it.
 """
 
 from __future__ import annotations
@@ -16,114 +16,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from ..physics.polarization import through_polarizer
-from ..physics.reflectance import ts_sigma_from_ward
-from . import metrics
-
-#: Metric columns (all "lower is better"), in table order, with their units.
-METRICS: dict[str, str] = {
-    "lamp_position_error_m": "m",
-    "lamp_position_error_pct": "% of lamp distance",
-    "direction_error_deg": "deg",
-    "distance_error_m": "m",
-    "sigma_rel_error": "relative",
-    "ks_rel_error": "relative (after global scale)",
-    "specular_rmse": "radiance",
-    "specular_rmse_rel": "relative to peak",
-    "runtime_s": "s",
-}
-#: Other numeric columns of a row (not compared as regressions).
-INFO_COLUMNS = ("distance_signed_m", "lamp_distance_true_m", "sigma_truth", "crlb_lamp_m", "crlb_sigma_rel")
-
-
-def truth_sigma(bsdf: Mapping[str, Any]) -> float:
-    """The σ an estimate is compared with: TS ``sigma``; Ward's small-angle equivalent ``alpha/√2``; else NaN."""
-    model = bsdf.get("model")
-    if model == "torrance_sparrow":
-        return float(bsdf["sigma"])
-    if model == "ward":
-        return ts_sigma_from_ward(float(bsdf["alpha"]))
-    return math.nan
-
-
-def truth_ks(bsdf: Mapping[str, Any]) -> np.ndarray | None:
-    """The specular colour an estimate's Ks is compared with (up to scale): ``ks`` or ``rho_s``."""
-    for key in ("ks", "rho_s"):
-        if key in bsdf:
-            return np.broadcast_to(np.asarray(bsdf[key], dtype=float), (3,))
-    return None
-
-
-def truth_estimate(capture: Any) -> Any:
-    """The oracle estimate of a Torrance–Sparrow capture, in the estimators' convention.
-
-    Estimators report Ks with the lamp intensity reaching the surface folded in
-    (``ks · I_lamp / 2`` behind the ideal polarizer), so that the unit-intensity
-    re-render matches the observed specular image.
-    """
-    truth = capture.truth
-    bsdf = truth["bsdf"]
-    intensity = np.broadcast_to(np.asarray(truth.get("lamp_intensity", 2.0), dtype=float), (3,))
-    from ..estimator import Estimate
-
-    return Estimate(
-        method="truth",
-        lamp_position=np.asarray(truth["lamp_position"], dtype=float),
-        ks=truth_ks(bsdf) * through_polarizer(intensity),
-        sigma=truth_sigma(bsdf),
-    )
-
-
-def score(capture: Any, estimate: Any) -> dict[str, float]:
-    """Metric columns of ``estimate`` against the truth of the noise-free ``capture``.
-
-    Parameters
-    ----------
-    capture : Capture
-        Noise-free capture with ``truth``, ``N`` and ``extra["truth_specular"]``.
-    estimate : Estimate
-        Its specular image is re-synthesised by the estimator's own forward
-        model (:func:`nearlight.estimator.render_specular`), which knows
-        distant-light estimates too.
-
-    A σ the estimator declares undetermined (``estimate.diagnostics["undetermined"]``,
-    e.g. ``distant`` on a plane) gets no σ error (NaN): any value fits the data.
-
-    Returns
-    -------
-    dict
-        The :data:`METRICS` columns (but ``runtime_s``) and ``distance_signed_m``,
-        ``lamp_distance_true_m``, ``sigma_truth``.
-    """
-    truth = capture.truth
-    bsdf = truth["bsdf"]
-    lamp_true = np.asarray(truth["lamp_position"], dtype=float)
-    lamp_est = np.asarray(estimate.lamp_position, dtype=float)
-    origin = metrics.highlight_point(capture.P, capture.N, capture.camera.position, lamp_true)
-    sigma_true = truth_sigma(bsdf)
-    ks_true = truth_ks(bsdf)
-    observed = capture.extra["truth_specular"]
-    mask = capture.surface_mask
-    from ..estimator import render_specular
-
-    rendered = np.asarray(render_specular(capture, estimate), dtype=float)
-    rmse = metrics.specular_rmse(rendered, observed, mask)
-    return {
-        "lamp_position_error_m": metrics.lamp_position_error(lamp_est, lamp_true),
-        "lamp_position_error_pct": metrics.lamp_position_error_pct(lamp_est, lamp_true, origin=origin),
-        "direction_error_deg": metrics.direction_error_deg(lamp_est, lamp_true, origin=origin),
-        "distance_error_m": metrics.distance_error(lamp_est, lamp_true, origin=origin),
-        "sigma_rel_error": math.nan if "sigma" in estimate.diagnostics.get("undetermined", ())
-        else metrics.sigma_relative_error(estimate.sigma, sigma_true),
-        "ks_rel_error": math.nan if ks_true is None else metrics.ks_relative_error(estimate.ks, ks_true),
-        "specular_rmse": rmse,
-        "specular_rmse_rel": rmse / float(np.max(observed[mask])),
-        "distance_signed_m": metrics.distance_error_signed(lamp_est, lamp_true, origin=origin),
-        "lamp_distance_true_m": float(np.linalg.norm(lamp_true - origin)),
-        "sigma_truth": sigma_true,
-    }
+from .metrics import INFO_COLUMNS, METRICS, score
 
 
 def run_method(capture: Any, method: str, options: Mapping[str, Any]) -> Any:
@@ -134,7 +27,7 @@ def run_method(capture: Any, method: str, options: Mapping[str, Any]) -> Any:
     return estimate(capture, method=method, **options)
 
 
-def _noisy(clean: Any, task: Mapping[str, Any]) -> Any:
+def noisy_capture(clean: Any, task: Mapping[str, Any]) -> Any:
     """The capture the estimator sees: camera noise, then range noise, both given the task's seed
     (the one seed rule of :mod:`nearlight.generator.noise`, as ``nearlight render`` with ``capture.seed``)."""
     capture = clean
@@ -181,7 +74,7 @@ def run_task(task: Mapping[str, Any], *, renderer: Any, cache_dir: str | None) -
     try:
         clean = renderer.render(task["scene"], cache_dir=None if cache_dir is None else Path(cache_dir))
         stage = "noise"
-        capture = _noisy(clean, task)
+        capture = noisy_capture(clean, task)
         stage = "estimate"
         t0 = time.perf_counter()
         est = run_method(capture, task["method_spec"], task["options"])

@@ -9,7 +9,7 @@ import pytest
 
 from nearlight.evaluation import metrics
 from nearlight.evaluation.crlb import crlb, specular_crlb, specular_variance_factor, stack_phase
-from nearlight.evaluation.tasks import METRICS, score, truth_estimate
+from nearlight.evaluation.metrics import METRICS, score, truth_estimate
 from nearlight.physics.reflectance import specular_radiance, shading_geometry
 from nearlight.generator.analytic import analytic_capture
 
@@ -113,3 +113,113 @@ def test_specular_crlb_scales_with_noise_and_bounds_phase():
     assert b["crlb_lamp_m"] == pytest.approx(2 * a["crlb_lamp_m"], rel=1e-9)
     assert b["crlb_sigma_rel"] == pytest.approx(2 * a["crlb_sigma_rel"], rel=1e-9)
     assert 0 < a["crlb_lamp_m"] < 0.01 and 0 < a["crlb_sigma_rel"] < 0.1
+
+
+# Degenerate inputs (STYLE.md 8c: every function on [-1, 0, 1, -inf, inf, nan]): a metric is a finite float or
+# NaN, never ±inf, never an exception (pytest turns numpy's warnings into errors, so none of those either).
+# ±1e308 add overflow on the way (their differences and squares exceed float64).
+EDGE = [-1.0, 0.0, 1.0, -math.inf, math.inf, math.nan, -1e308, 1e308]
+
+
+def _finite_or_nan(x):
+    return isinstance(x, float) and (math.isfinite(x) or math.isnan(x))
+
+
+@pytest.mark.parametrize("value", EDGE)
+def test_every_metric_on_edge_values_is_finite_or_nan(value):
+    v = np.array([0.1, value, 0.3])
+    others = [np.array([0.1, 0.2, 0.3]), np.zeros(3), v]
+    for est in [v, *others]:
+        for true in [v, *others]:
+            for origin in [v, *others]:
+                for f in (metrics.lamp_position_error_pct, metrics.direction_error_deg, metrics.distance_error,
+                          metrics.distance_error_signed):
+                    assert _finite_or_nan(f(est, true, origin=origin)), (f.__name__, est, true, origin)
+            assert _finite_or_nan(metrics.lamp_position_error(est, true))
+            assert _finite_or_nan(metrics.ks_relative_error(est, true))
+        for s in EDGE:
+            assert _finite_or_nan(metrics.sigma_relative_error(value, s))
+            assert _finite_or_nan(metrics.sigma_relative_error(s, value))
+    img = np.full((2, 2, 3), value)
+    ones = np.ones((2, 2, 3))
+    for mask in (np.ones((2, 2), bool), np.zeros((2, 2), bool)):
+        for a, b in ((img, ones), (ones, img), (img, img)):
+            assert _finite_or_nan(metrics.specular_rmse(a, b, mask))
+            assert _finite_or_nan(metrics.specular_rmse_relative(a, b, mask))
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_a_non_finite_estimate_gives_nan_never_a_finite_number(bad):
+    true, origin = np.array([0.0, 0.0, 0.5]), np.zeros(3)
+    est = np.array([0.0, bad, 0.5])
+    for f in (metrics.lamp_position_error_pct, metrics.direction_error_deg, metrics.distance_error,
+              metrics.distance_error_signed):
+        assert math.isnan(f(est, true, origin=origin)), f.__name__
+    assert math.isnan(metrics.lamp_position_error(est, true))
+    assert math.isnan(metrics.sigma_relative_error(bad, 0.1))
+    # before: a NaN Ks gave ee = NaN, "ee > 0" false, scale 0 and the finite error 1.0
+    assert math.isnan(metrics.ks_relative_error([0.8, bad, 0.5], [0.8, 0.6, 0.5]))
+    assert math.isnan(metrics.specular_rmse(np.full((2, 2, 3), bad), np.ones((2, 2, 3)), np.ones((2, 2), bool)))
+
+
+def test_a_true_lamp_at_the_origin_has_no_direction_and_no_relative_distance():
+    origin = np.array([0.1, 0.2, 0.0])
+    est = origin + [0.0, 0.0, 0.3]
+    assert math.isnan(metrics.lamp_position_error_pct(est, origin, origin=origin))  # was ZeroDivisionError
+    assert math.isnan(metrics.direction_error_deg(est, origin, origin=origin))  # was a silent 0.0
+    assert math.isnan(metrics.direction_error_deg(origin, est, origin=origin))  # an estimate there, likewise
+    # what stays defined: the position error and the distance error (the estimate's distance, 0.3 m)
+    assert metrics.lamp_position_error(est, origin) == pytest.approx(0.3, rel=1e-15)
+    assert metrics.distance_error_signed(est, origin, origin=origin) == pytest.approx(0.3, rel=1e-15)
+
+
+def test_sigma_and_ks_truths_of_zero_have_no_relative_error():
+    assert math.isnan(metrics.sigma_relative_error(0.1, 0.0))  # a mirror truth: was ZeroDivisionError
+    assert math.isnan(metrics.sigma_relative_error(0.0, 0.0))
+    assert math.isnan(metrics.sigma_relative_error(0.1, -0.1))
+    assert math.isnan(metrics.ks_relative_error([0.8, 0.6, 0.5], [0.0, 0.0, 0.0]))  # was a numpy 0/0 warning
+    # a truth image without a positive peak: no relative RMSE (was ZeroDivisionError), the RMSE itself stays
+    zeros, mask = np.zeros((2, 2, 3)), np.ones((2, 2), bool)
+    assert metrics.specular_rmse(np.ones((2, 2, 3)), zeros, mask) == 1.0
+    assert math.isnan(metrics.specular_rmse_relative(np.ones((2, 2, 3)), zeros, mask))
+
+
+def test_no_highlight_gives_a_nan_origin():
+    cap = analytic_capture(width=32, height=24)
+    below = [0.0, 0.0, -0.3]  # under the z = 0 board: no surface point sees lamp and camera
+    assert np.all(np.isnan(metrics.highlight_point(cap.P, cap.N, cap.camera.position, below)))
+
+
+def _set_truth(cap, **bsdf):
+    return cap.replace(truth={**cap.truth, "bsdf": {**cap.truth["bsdf"], **bsdf}})
+
+
+@pytest.mark.parametrize("field", ["lamp_position", "ks", "sigma"])
+@pytest.mark.parametrize("bad", [math.nan, math.inf])
+def test_score_of_a_non_finite_estimate_is_nan_where_it_enters(field, bad):
+    cap = analytic_capture(width=32, height=24)
+    est = truth_estimate(cap)
+    if field == "sigma":
+        est.sigma = bad
+    else:
+        getattr(est, field)[0] = bad
+    row = score(cap, est)
+    lamp = ("lamp_position_error_m", "lamp_position_error_pct", "direction_error_deg", "distance_error_m",
+            "distance_signed_m")
+    nan = {"lamp_position": (*lamp, "specular_rmse", "specular_rmse_rel"),
+           "ks": ("ks_rel_error", "specular_rmse", "specular_rmse_rel"),
+           "sigma": ("sigma_rel_error", "specular_rmse", "specular_rmse_rel")}[field]
+    for k, v in row.items():
+        assert _finite_or_nan(v), k
+        assert math.isnan(v) == (k in nan), (k, v)
+
+
+def test_score_of_a_mirror_truth_and_of_an_undetermined_sigma():
+    cap = analytic_capture(width=32, height=24)
+    row = score(_set_truth(cap, sigma=0.0), truth_estimate(cap))
+    assert row["sigma_truth"] == 0.0 and math.isnan(row["sigma_rel_error"])
+    est = truth_estimate(cap)
+    est.sigma = 0.2
+    est.diagnostics = {"undetermined": ["light_direction", "sigma"]}  # as distant on a plane: any σ fits
+    row = score(cap, est)
+    assert math.isnan(row["sigma_rel_error"]) and row["specular_rmse"] > 0

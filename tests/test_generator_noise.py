@@ -200,7 +200,7 @@ def test_render_and_a_sweep_task_with_the_same_seed_make_the_same_noisy_capture(
     # The one seed rule (nearlight.generator.noise): `nearlight render --set capture.seed=3` and a sweep task
     # with seed 3 on the same clean render see the same camera and range noise. No Mitsuba: the render is an
     # analytic capture standing in for render_clean.
-    from nearlight.evaluation.tasks import _noisy
+    from nearlight.evaluation.tasks import noisy_capture
     from nearlight.generator import load_scene, pipeline
 
     clean = analytic_capture(width=64, height=48, analyzer_angles_deg=np.arange(8) * 22.5)
@@ -209,9 +209,9 @@ def test_render_and_a_sweep_task_with_the_same_seed_make_the_same_noisy_capture(
                        overrides={"capture.seed": 3, "capture.noise": noise, "capture.range_noise_m": 0.001})  # fmt: skip
     monkeypatch.setattr(pipeline, "render_clean", lambda *a, **k: clean)
     rendered = read_capture(pipeline.render_capture(scene, tmp_path / "cap", progress=False))
-    swept = _noisy(clean, {"noise": noise, "range_noise": 0.001, "seed": 3})
+    swept = noisy_capture(clean, {"noise": noise, "range_noise": 0.001, "seed": 3})
     assert not np.array_equal(swept.stack, clean.stack.astype(np.float32))
     assert np.array_equal(rendered.stack, swept.stack)
     assert np.array_equal(rendered.P, swept.P, equal_nan=True)
-    other = _noisy(clean, {"noise": noise, "range_noise": 0.001, "seed": 4})
+    other = noisy_capture(clean, {"noise": noise, "range_noise": 0.001, "seed": 4})
     assert not np.array_equal(rendered.stack, other.stack) and not np.array_equal(rendered.P, other.P, equal_nan=True)
