@@ -86,3 +86,49 @@ def test_cache_and_no_cache_exclude_each_other(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["render", "x.yaml", "--out", "o", "--cache", "c", "--no-cache"])
     assert exc.value.code == 2 and "not allowed with argument" in capsys.readouterr().err
+
+
+PLUGIN = '''
+from nearlight.estimator import estimate
+from nearlight.estimator.options import Choice, Positive
+
+
+def fit(capture, *, scale: Positive = 1.0, flavour: Choice(("plain", "fancy")) = "plain", note=None):
+    return estimate(capture, method="paper-init")
+'''
+
+
+@pytest.mark.parametrize(
+    ("setting", "needle"),
+    [
+        ("scale=-1", "option scale: Input should be greater than 0 (got -1)"),
+        ("scale=abc", "option scale: Input should be a valid number (got 'abc')"),
+        ("flavour=spicy", "option flavour: Value error, expected one of plain, fancy (got 'spicy')"),
+        ("colour=1", "option 'colour': not accepted by method nl_grammar_plugin:fit (it takes: scale, flavour, note)"),
+    ],
+)
+def test_a_plugin_is_checked_from_its_signature_in_estimate_and_in_sweeps(tmp_path, capsys, monkeypatch, setting, needle):
+    (tmp_path / "nl_grammar_plugin.py").write_text(PLUGIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    method = "nl_grammar_plugin:fit"
+    out, err = _run(capsys, ["estimate", str(tmp_path / "not-read"), "--method", method, "--set", setting], status=2)
+    assert out == "" and err == f"nearlight: error: {needle}\n"
+    key, _, value = setting.partition("=")
+    sweep = {**SWEEP, "methods": [{"method": method, "options": {key: yaml.safe_load(value)}}]}
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(sweep))
+    out, err = _run(capsys, ["sweep", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "res")], status=2)
+    assert out == "" and needle in err and err.count("\n") == 1
+    assert not (tmp_path / "res").exists()
+
+
+def test_a_plugin_with_good_options_runs_in_estimate_and_in_sweeps(tmp_path, capsys, monkeypatch):
+    (tmp_path / "nl_grammar_plugin.py").write_text(PLUGIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    cap = write_capture(analytic_capture(width=48, height=36), tmp_path / "cap")
+    out, _ = _run(capsys, ["estimate", str(cap), "--method", "nl_grammar_plugin:fit", "--set", "scale=2",
+                           "--set", "flavour=fancy", "--set", "note={any: thing}"])  # fmt: skip
+    assert out.startswith("nl_grammar_plugin:fit: lamp (")
+    sweep = {**SWEEP, "methods": [{"method": "nl_grammar_plugin:fit", "options": {"scale": 2e-3, "flavour": "fancy"}}]}
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(sweep))
+    out, err = _run(capsys, ["sweep", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "res"), "--quiet"])
+    assert out == f"{tmp_path / 'res'}\n" and "0 failed" in err
