@@ -66,6 +66,24 @@ def test_extras_are_declared():
     assert "-e \".[all,test]\"" in (ROOT / "scripts" / "setup").read_text()
 
 
+def test_every_module_imports_without_extras(tmp_path):
+    """Mitsuba, Dr.Jit and Dask are imported only inside the functions that use them."""
+    walk = BLOCKED_RUNNER.split("from nearlight.cli import main")[0] + textwrap.dedent(
+        """
+        import importlib, pkgutil
+        import nearlight
+
+        skip = ("nearlight.tests", "nearlight.benchmarks", "nearlight.scripts", "nearlight.__main__")
+        names = [m.name for m in pkgutil.walk_packages(nearlight.__path__, "nearlight.") if not m.name.startswith(skip)]
+        for name in names:
+            importlib.import_module(name)
+        assert len(names) > 50 and not BLOCKED & set(m.partition(".")[0] for m in sys.modules)
+        """
+    )
+    run = subprocess.run([sys.executable, "-c", walk], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert run.returncode == 0, run.stderr
+
+
 def test_without_extras_estimate_and_evaluate_work_and_render_says_what_to_install(tmp_path):
     cap = write_capture(analytic_capture(width=48, height=36), tmp_path / "cap")
     run = _blocked(tmp_path, "estimate", str(cap), "--method", "paper-init", "--json", str(tmp_path / "e.json"))
