@@ -6,7 +6,15 @@ function to call with the parsed arguments. Registration imports nothing heavy:
 Mitsuba is imported only when a verb that renders runs.
 
 A :class:`~nearlight.errors.UserError` anywhere becomes one line on stderr and
-exit status 2; argparse's own usage errors also exit with 2.
+exit status 2; argparse's own usage errors also exit with 2. A verb that needs
+an extra that is not installed (:class:`~nearlight.errors.MissingExtra`) says
+which, in one line: ``nearlight render: needs the renderer: pip install
+'nearlight[render]'``, exit status 2.
+
+Every verb writes its result on stdout and nothing else there: the answer it
+computed (``estimate``'s line, ``compare``'s checks), then the path of each
+file or folder it wrote, one a line. Progress bars, status lines, notes,
+warnings and errors go to stderr (docs/cli.md).
 """
 
 from __future__ import annotations
@@ -19,7 +27,7 @@ import threading
 from collections.abc import Iterator, Sequence
 
 from . import __version__
-from .errors import UserError
+from .errors import MissingExtra, UserError
 from .estimator import cli as estimator_cli
 from .evaluation import cli as evaluation_cli
 from .evaluation import reproduce_cli
@@ -73,6 +81,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with _sigterm_unwinds():
             return int(args.run(args) or 0)
+    except MissingExtra as exc:
+        print(f"nearlight {args.verb}: {exc}", file=sys.stderr)
+        return exc.exit_code
     except UserError as exc:
         print(f"nearlight: error: {exc}", file=sys.stderr)
         return UserError.exit_code

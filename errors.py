@@ -1,9 +1,12 @@
-"""The one exception type that means "the user gave bad input".
+"""The one exception type that means "the user gave bad input", and its one special case.
 
 Raise :class:`UserError` with a one-line message that names the file, key or
 channel and says what was expected. The CLI prints it as
 ``nearlight: error: <message>`` and exits with status 2; any other exception is
-a bug in nearlight and keeps its traceback.
+a bug in nearlight and keeps its traceback. :class:`MissingExtra` (from
+:func:`require_extra`) is a :class:`UserError` for a verb that needs an optional
+part that is not installed; the CLI prints it as ``nearlight <verb>: needs the
+renderer: pip install 'nearlight[render]'``.
 """
 
 
@@ -21,3 +24,42 @@ class UserError(Exception):
 
     def __init__(self, message: str):
         super().__init__(" ".join(str(message).split()))
+
+
+#: The optional parts of nearlight (``pip install 'nearlight[EXTRA]'``): what each gives, and the
+#: modules it installs. A plain install has the estimator, the capture format and the evaluation of
+#: existing captures; these are imported only inside the functions that need them.
+EXTRAS = {
+    "render": ("the renderer", ("mitsuba", "drjit")),
+    "cluster": ("the cluster", ("dask", "distributed")),
+}
+
+
+class MissingExtra(UserError):
+    """A verb needs an optional part of nearlight that is not installed.
+
+    The CLI prints it as ``nearlight <verb>: needs the renderer: pip install
+    'nearlight[render]'`` and exits with status 2.
+
+    Parameters
+    ----------
+    extra : str
+        A key of :data:`EXTRAS`.
+    """
+
+    def __init__(self, extra: str):
+        self.extra = extra
+        super().__init__(f"needs {EXTRAS[extra][0]}: pip install 'nearlight[{extra}]'")
+
+
+def require_extra(extra: str) -> None:
+    """Raise :class:`MissingExtra` unless every module of ``extra`` can be imported (found, not imported)."""
+    import importlib.util
+
+    for module in EXTRAS[extra][1]:
+        try:
+            found = importlib.util.find_spec(module) is not None
+        except (ImportError, ValueError):
+            found = False
+        if not found:
+            raise MissingExtra(extra)

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
 
 from ..errors import UserError
 from ..files.atomic import write_json
+from ..files.yamlfile import parse_setting
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -27,23 +27,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--json", metavar="OUT", help="write the estimate as JSON here")
     p.add_argument("--plot", metavar="OUT.png", help="write E_p(t) and observed vs re-synthesised specular here")
     p.add_argument(
-        "--option", metavar="KEY=VALUE", action="append", default=[],
-        help="method option, repeatable; VALUE is parsed as JSON when it can be (e.g. t_max=2.0, search=scan)",
+        "--set", dest="options", metavar="KEY=VALUE", action="append", default=[],
+        help="method option, repeatable; VALUE in YAML (e.g. --set energy=radiance --set max_outer=50)",
     )
     p.set_defaults(run=run)
 
 
 def parse_options(pairs: list[str]) -> dict[str, Any]:
-    """``["k=v", ...]`` to a dict; values parsed as JSON, else kept as strings."""
+    """``["KEY=VALUE", ...]`` of ``--set`` to ``{KEY: VALUE}``, values read as YAML (not yet checked)."""
     out: dict[str, Any] = {}
     for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key.isidentifier():
-            raise UserError(f"--option {pair!r}: expected KEY=VALUE with KEY a name, e.g. t_max=2.0")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
+        key, value = parse_setting(pair, example="t_max=2.0")
+        if not key.isidentifier():
+            raise UserError(f"--set {pair!r}: expected KEY=VALUE with KEY an option's name, e.g. t_max=2.0")
+        out[key] = value
     return out
 
 
@@ -54,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from ..files.outputs import check_file_out
 
     # the method and its options are checked before anything is read or written
-    options = check_options(load_method(args.method), parse_options(args.option), method=args.method)
+    options = check_options(load_method(args.method), parse_options(args.options), method=args.method)
     # Both output places are checked before any work; the plot is drawn before the
     # JSON is written, so a failing plot never leaves a lone estimate behind.
     if args.json:
@@ -67,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
     est = estimate(capture, method=args.method, **options)
     pos = ", ".join(f"{v:.4f}" for v in est.lamp_position)
     ks = ", ".join(f"{v:.4g}" for v in est.ks)
+    # the result on stdout: the estimate, then the path of each file written
     print(f"{est.method}: lamp ({pos}) m  ks ({ks})  sigma {est.sigma:.4f} rad  "
           f"[{sum(est.timings.values()):.2f} s]")
     if args.plot:
@@ -75,5 +73,8 @@ def run(args: argparse.Namespace) -> int:
         plot_estimate(capture, est, args.plot)
     if args.json:
         write_json(Path(args.json), est.to_dict(), what="the estimate")
+    for written in (args.plot, args.json):
+        if written:
+            print(written)
     sys.stdout.flush()
     return 0

@@ -8,7 +8,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..errors import UserError
+from ..errors import UserError, require_extra
+from ..generator.cli import add_quiet_option
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -24,7 +25,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="results folder (resumed when it exists)")
     p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on this Dask distributed scheduler")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_quiet_option(p)
     p.set_defaults(run=_sweep)
 
     p = subparsers.add_parser(
@@ -64,10 +65,13 @@ def _sweep(args: argparse.Namespace) -> int:
         raise UserError(f"--workers: expected a positive integer, got {args.workers}")
     if args.scheduler is not None:
         check_scheduler(args.scheduler)
+        require_extra("cluster")
     from ..files.outputs import check_folder
 
     check_folder(args.out, what="results folder")
     sweep = load_sweep(args.sweep)
+    if sweep.renderer.extra is not None:
+        require_extra(sweep.renderer.extra)
     _check_resumable(Path(args.out), sweep)
     where = f"Dask scheduler {args.scheduler}" if args.scheduler else f"{args.workers} local worker(s)"
     print(
@@ -88,6 +92,7 @@ def _sweep(args: argparse.Namespace) -> int:
         + ("complete: results.parquet written" if s.complete else "INCOMPLETE"),
         file=sys.stderr,
     )
+    print(args.out)  # the result: the results folder (complete or not: the exit status says)
     return 0 if s.complete else 1
 
 
@@ -120,7 +125,7 @@ def _report(args: argparse.Namespace) -> int:
     from .report import write_report
 
     folder = write_report(args.dir, out=args.out)
-    print(f"report written to {folder}", file=sys.stderr)
+    print(folder)  # the result: the report folder written
     return 0
 
 
@@ -133,4 +138,6 @@ def _compare(args: argparse.Namespace) -> int:
     )
     for line in lines:
         print(line)
+    if args.json:
+        print(args.json)
     return 1 if any(c.regression for c in checks) else 0

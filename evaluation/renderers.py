@@ -62,6 +62,8 @@ class Renderer:
     polarization_key: str | None = None
     #: Renders are slow and cached on disk: render each physical configuration once up front.
     prerender = False
+    #: The optional part of nearlight it needs (``pip install 'nearlight[EXTRA]'``), or None.
+    extra: str | None = None
 
     def load_base(self, scene: str | dict, *, base_dir: Path, where: str) -> dict:
         """The base scene as a dict: a mapping as given, or a YAML file relative to ``base_dir``."""
@@ -245,6 +247,7 @@ class MitsubaRenderer(Renderer):
     angles_key = "capture.analyzer_angles_deg"
     polarization_key = "material.polarization"
     prerender = True
+    extra = "render"
 
     def _scene(self, scene: dict) -> Any:
         from ..generator import load_scene

@@ -1,10 +1,16 @@
-"""Reading YAML files people type: one place that turns every way a file can be
+"""Reading YAML people type: one place that turns every way a file can be
 unreadable (missing, a folder, not UTF-8 text, binary, not YAML, nested too
-deep) into one :class:`~nearlight.errors.UserError` line naming the file."""
+deep) into one :class:`~nearlight.errors.UserError` line naming the file, and
+the one reader of ``--set KEY=VALUE`` (:func:`parse_setting`).
+
+Files and ``--set`` values are read alike, as YAML with one change from
+PyYAML's YAML 1.1: a number in exponent form without a dot (``1e-6``) is a
+number, as in YAML 1.2 and JSON, not the string ``"1e-6"``."""
 
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -49,11 +55,49 @@ def read_text_file(path: str | os.PathLike, *, what: str) -> str:
     return text
 
 
+class _Loader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` reading ``1e-6`` as a float (YAML 1.2), as people mean it."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789")
+)
+
+
+def load_yaml(text: str) -> Any:
+    """Parse YAML text as nearlight reads every file and ``--set`` value (``yaml.safe_load``, plus ``1e-6``)."""
+    return yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader
+
+
+def parse_setting(item: str, *, example: str) -> tuple[str, Any]:
+    """``"KEY=VALUE"`` of a ``--set`` option to ``(KEY, VALUE)``, VALUE read as YAML.
+
+    Parameters
+    ----------
+    item : str
+        The option's argument, e.g. ``"lamp.position=[0.2, 0.1, 0.3]"``.
+    example : str
+        A valid setting, for the message when ``item`` is not one.
+
+    Raises
+    ------
+    UserError
+        ``--set 'ITEM': ...`` for a missing ``=`` or key, or a value that is not YAML.
+    """
+    key, sep, text = str(item).partition("=")
+    if not sep or not key.strip():
+        raise UserError(f"--set {item!r}: expected KEY=VALUE, e.g. {example}")
+    try:
+        return key.strip(), load_yaml(text)
+    except (yaml.YAMLError, RecursionError):
+        raise UserError(f"--set {item!r}: value is not valid YAML") from None
+
+
 def load_yaml_file(path: str | os.PathLike, *, what: str) -> Any:
-    """Parse a UTF-8 YAML file (``yaml.safe_load``), or a :class:`UserError` naming it and the line."""
+    """Parse a UTF-8 YAML file (:func:`load_yaml`), or a :class:`UserError` naming it and the line."""
     text = read_text_file(path, what=what)
     try:
-        return yaml.safe_load(text)
+        return load_yaml(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1})" if mark is not None else ""

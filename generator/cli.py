@@ -14,6 +14,30 @@ def default_cache_dir() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "nearlight" / "renders"
 
 
+def add_cache_options(parser: argparse.ArgumentParser) -> None:
+    """``--cache DIR`` and ``--no-cache``, spelled and defaulted the same on every verb that renders."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--cache", metavar="DIR", default=None,
+                       help=f"render cache folder (default: $NEARLIGHT_CACHE or {default_cache_dir()})")  # fmt: skip
+    group.add_argument("--no-cache", action="store_true", help="do not read or write the render cache")
+
+
+def cache_dir(args: argparse.Namespace) -> Path | None:
+    """The render cache folder the options of :func:`add_cache_options` ask for (checked), or None."""
+    from ..files.outputs import check_folder
+
+    if args.no_cache:
+        return None
+    folder = Path(args.cache) if args.cache else default_cache_dir()
+    check_folder(folder, what="render cache folder (--cache)")
+    return folder
+
+
+def add_quiet_option(parser: argparse.ArgumentParser) -> None:
+    """``--quiet``, on every verb that shows progress: no progress bars (results, notes and errors stay)."""
+    parser.add_argument("--quiet", action="store_true", help="no progress bars on stderr")
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``render`` and ``show`` to the ``nearlight`` command."""
     p = subparsers.add_parser(
@@ -25,13 +49,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="capture directory to create")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene key, value in YAML, e.g. --set lamp.position=[0.2,0.1,0.3]")  # fmt: skip
-    p.add_argument("--cache", metavar="DIR", default=None,
-                   help=f"render cache folder (default: $NEARLIGHT_CACHE or {default_cache_dir()})")  # fmt: skip
-    p.add_argument("--no-cache", action="store_true", help="do not read or write the render cache")
+    add_cache_options(p)
     p.add_argument("--overwrite", action="store_true",
                    help="replace an existing capture at --out (only a capture: a folder holding exactly "
                    "capture.json and capture.exr)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet_option(p)
     p.set_defaults(run=_render)
 
     s = subparsers.add_parser(
@@ -46,26 +68,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _render(args: argparse.Namespace) -> int:
-    import sys
-
     from . import load_scene, render_capture
 
     from .pipeline import check_writable
-    from ..files.outputs import check_folder
+    from ..errors import require_extra
 
+    require_extra("render")
     check_writable(Path(args.out), overwrite=args.overwrite)
     scene = load_scene(args.scene, overrides=args.overrides)
-    cache = None if args.no_cache else (args.cache or default_cache_dir())
-    if cache is not None:
-        check_folder(cache, what="render cache folder (--cache)")
-    out = render_capture(scene, args.out, cache_dir=cache, progress=not args.quiet, overwrite=args.overwrite)
-    print(f"wrote {out}", file=sys.stderr)
+    out = render_capture(scene, args.out, cache_dir=cache_dir(args), progress=not args.quiet, overwrite=args.overwrite)
+    print(out)  # the result: the capture folder written
     return 0
 
 
 def _show(args: argparse.Namespace) -> int:
-    import sys
-
     from .show import contact_sheet
 
     from ..files.outputs import check_file_out
@@ -75,5 +91,5 @@ def _show(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else named.parent / f"{named.name or 'capture'}.png"
     check_file_out(out, "png", flag="--out")
     contact_sheet(folder, out)
-    print(f"wrote {out}", file=sys.stderr)
+    print(out)  # the result: the PNG written
     return 0

@@ -26,6 +26,8 @@ import warnings
 from functools import cache
 from types import ModuleType
 
+from ..errors import require_extra
+
 LLVM_VARIANT = "llvm_ad_mono_polarized"
 SCALAR_VARIANT = "scalar_spectral_polarized"
 #: Oldest LLVM major version Dr.Jit 1.5 works with on these machines.
@@ -86,7 +88,13 @@ def mitsuba() -> ModuleType:
     module
         ``mitsuba``; ``mitsuba.variant()`` is :data:`LLVM_VARIANT` or
         :data:`SCALAR_VARIANT`.
+
+    Raises
+    ------
+    MissingExtra
+        Mitsuba or Dr.Jit is not installed (``pip install 'nearlight[render]'``).
     """
+    require_extra("render")  # a plain install has no renderer: one line naming the extra
     variant, lib = planned_variant()
     if lib is not None and "DRJIT_LIBLLVM_PATH" not in os.environ:
         os.environ["DRJIT_LIBLLVM_PATH"] = lib

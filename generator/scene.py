@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
 import numpy as np
-import yaml
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -30,7 +29,7 @@ from pydantic import (
 
 from ..files.dotted import set_dotted
 from ..errors import UserError
-from ..files.yamlfile import load_yaml_file
+from ..files.yamlfile import load_yaml_file, parse_setting
 
 PositiveFloat = Annotated[float, Field(gt=0)]
 Vec3 = tuple[float, float, float]
@@ -344,7 +343,7 @@ def load_scene(
         data = load_yaml_file(path, what="scene file")
         if not isinstance(data, dict):
             raise UserError(f"{path}: expected a mapping with camera, object, material, lamp, capture")
-    for key, value in _parse_overrides(overrides, name):
+    for key, value in _parse_overrides(overrides):
         set_dotted(data, key, value, where=name)
     try:
         scene = Scene.model_validate(data, context={"base": base})
@@ -354,19 +353,10 @@ def load_scene(
     return scene
 
 
-def _parse_overrides(overrides: Iterable[str] | Mapping[str, Any], name: str) -> list[tuple[str, Any]]:
+def _parse_overrides(overrides: Iterable[str] | Mapping[str, Any]) -> list[tuple[str, Any]]:
     if isinstance(overrides, Mapping):
         return list(overrides.items())
-    out = []
-    for item in overrides:
-        key, sep, text = str(item).partition("=")
-        if not sep or not key.strip():
-            raise UserError(f"--set {item!r}: expected KEY=VALUE, e.g. lamp.position=[0.2,0.1,0.3]")
-        try:
-            out.append((key.strip(), yaml.safe_load(text)))
-        except yaml.YAMLError:
-            raise UserError(f"--set {item!r}: value is not valid YAML") from None
-    return out
+    return [parse_setting(item, example="lamp.position=[0.2,0.1,0.3]") for item in overrides]
 
 
 def _describe(exc: ValidationError) -> str:

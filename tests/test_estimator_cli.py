@@ -40,7 +40,7 @@ def test_estimate_writes_json_and_plot(capture_dir, tmp_path, capsys, method):
 def test_options_reach_the_method(capture_dir, tmp_path, capsys):
     out = tmp_path / "e.json"
     argv = ["estimate", str(capture_dir), "--method", "paper-init", "--json", str(out),
-            "--option", "t_max=1.5", "--option", "search=scan", "--option", "dt=0.002"]
+            "--set", "t_max=1.5", "--set", "search=scan", "--set", "dt=0.002"]
     assert main(argv) == 0
     d = json.loads(out.read_text())["diagnostics"]
     assert (d["t_max"], d["search"], d["dt"]) == (1.5, "scan", 0.002)
@@ -94,7 +94,7 @@ def test_peak_on_the_image_border(tmp_path, capsys):
 
 def test_t_max_that_cannot_reach_the_lamp(capture_dir, capsys):
     # the lamp is 0.40 m from the highlight and E_p decreases until t* = 0.22 m
-    line = _error(capsys, ["estimate", str(capture_dir), "--method", "paper-init", "--option", "t_max=0.05"])
+    line = _error(capsys, ["estimate", str(capture_dir), "--method", "paper-init", "--set", "t_max=0.05"])
     assert "t_max" in line and str(capture_dir) in line
 
 
@@ -112,9 +112,9 @@ def test_json_that_is_not_format_v1(capture_dir, capsys):
         (["--method", "nope"], "method"),
         (["--method", "no_such_module_xyz:f"], "no_such_module_xyz"),
         (["--method", "json:no_such_function"], "no_such_function"),
-        (["--option", "bogus=1"], "bogus"),
-        (["--option", "=1"], "--option"),
-        (["--method", "full", "--option", "loss=nope"], "loss"),
+        (["--set", "bogus=1"], "bogus"),
+        (["--set", "=1"], "--set"),
+        (["--method", "full", "--set", "loss=nope"], "loss"),
     ],
 )
 def test_bad_method_or_option(capture_dir, capsys, argv, needle):
@@ -145,7 +145,7 @@ def test_bad_method_or_option(capture_dir, capsys, argv, needle):
 )
 def test_option_values_are_checked_from_the_declaration(tmp_path, capsys, method, option, needle):
     missing = tmp_path / "not-read"  # the options are refused before the capture is opened
-    line = _error(capsys, ["estimate", str(missing), "--method", method, "--option", option])
+    line = _error(capsys, ["estimate", str(missing), "--method", method, "--set", option])
     assert needle in line, line
 
 

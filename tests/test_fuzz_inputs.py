@@ -789,7 +789,7 @@ BAD_OPTION_VALUES: list[Any] = ["abc", [1, 2], {"a": 1}]
 
 def _estimator_option_cases() -> None:
     """Every declared option of every built-in method with values none accepts, plus unknown names; through
-    ``estimate --option`` (refused before the capture is read) and a sweep file's ``methods[].options``."""
+    ``estimate --set`` (refused before the capture is read) and a sweep file's ``methods[].options``."""
     from nearlight.estimator import METHODS
     from nearlight.estimator.options import declared_options
 
@@ -802,7 +802,7 @@ def _estimator_option_cases() -> None:
             @case(f"option-{method}-{name}-{k}")
             def build(folder, assets, method=method, name=name, value=value):
                 return ["estimate", str(folder / "no-capture"), "--method", method,
-                        "--option", f"{name}={json.dumps(value)}"], name  # fmt: skip
+                        "--set", f"{name}={json.dumps(value)}"], name  # fmt: skip
 
         name, value = rng.choice(pairs)
 
