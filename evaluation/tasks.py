@@ -34,8 +34,11 @@ METRICS: dict[str, str] = {
     "specular_rmse_rel": "relative to peak",
     "runtime_s": "s",
 }
+#: The estimate itself (lamp position in m, σ in rad, Ks per channel), so a row can be re-synthesised.
+ESTIMATE_COLUMNS = ("est_lamp_x_m", "est_lamp_y_m", "est_lamp_z_m", "est_sigma", "est_ks_r", "est_ks_g", "est_ks_b")
 #: Other numeric columns of a row (not compared as regressions).
-INFO_COLUMNS = ("distance_signed_m", "lamp_distance_true_m", "sigma_truth", "crlb_lamp_m", "crlb_sigma_rel")
+INFO_COLUMNS = ("distance_signed_m", "lamp_distance_true_m", "sigma_truth", "crlb_lamp_m", "crlb_sigma_rel",
+                *ESTIMATE_COLUMNS)
 
 
 def truth_sigma(bsdf: Mapping[str, Any]) -> float:
@@ -186,6 +189,8 @@ def run_task(task: Mapping[str, Any], *, renderer: Any, cache_dir: str | None) -
         t0 = time.perf_counter()
         est = run_method(capture, task["method_spec"], task["options"])
         row["runtime_s"] = time.perf_counter() - t0
+        values = [*np.ravel(est.lamp_position), est.sigma, *np.broadcast_to(est.ks, (3,))]
+        row.update(zip(ESTIMATE_COLUMNS, map(float, values)))
         stage = "score"
         row.update(score(clean, est))
         stage = "crlb"
