@@ -23,9 +23,10 @@ from pathlib import Path
 from typing import Any
 
 from .environment import code_version
-from .store import MANIFEST, ResultStore, read_manifest, set_aside_damaged_parts
+from ..errors import UserError
+from .store import MANIFEST, RENDERS, ResultStore, read_manifest, set_aside_damaged_parts
 from .sweep import Sweep, Task
-from .tasks import run_task
+from .tasks import ESTIMATE_COLUMNS, _noisy, run_task
 
 
 @dataclasses.dataclass
@@ -75,6 +76,36 @@ def task_row(task: Task, result: dict[str, Any], *, sweep: Sweep, version: str) 
     )
     row.update(result)
     return row
+
+
+def check_resumable(out: str | Path, sweep: Sweep) -> None:
+    """Raise :class:`UserError` unless ``out`` holds no sweep or this one (checked before any work)."""
+    out = Path(out)
+    if (out / MANIFEST).exists():
+        old = read_manifest(out)
+        if old["sweep_hash"] != sweep.sweep_hash:
+            raise UserError(
+                f"{out}: holds results of another sweep ({old['name']!r}, hash {old['sweep_hash']}); "
+                "choose another --out or remove it"
+            )
+
+
+def task_captures(sweep: Sweep, task: Task, out: str | Path) -> tuple[Any, Any]:
+    """The noise-free capture of a finished task, from the render cache of its results folder
+    ``out`` (a cache hit), and the capture its estimator saw (the task's noise with its seed)."""
+    clean = sweep.renderer.render(task.scene, cache_dir=Path(out) / RENDERS)
+    return clean, _noisy(clean, task_payload(task, sweep))
+
+
+def row_estimate(row: Any) -> Any:
+    """The :class:`~nearlight.estimator.Estimate` a result row records (lamp, σ, Ks; a point lamp),
+    to re-synthesise it (:func:`nearlight.estimator.render_specular`)."""
+    import numpy as np
+
+    from ..estimator import Estimate
+
+    x, y, z, sigma, *ks = (float(row[c]) for c in ESTIMATE_COLUMNS)
+    return Estimate(method=str(row["method"]), lamp_position=np.array([x, y, z]), ks=np.array(ks), sigma=sigma)
 
 
 class _Deferred:
