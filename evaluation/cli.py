@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 import re
 import sys
-from pathlib import Path
-from typing import Any
 
 from ..errors import UserError
 
@@ -57,7 +55,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from .engine import run_sweep
+    from .engine import check_resumable, run_sweep
     from .sweep import load_sweep
 
     if args.workers < 1:
@@ -68,7 +66,7 @@ def _sweep(args: argparse.Namespace) -> int:
 
     check_folder(args.out, what="results folder")
     sweep = load_sweep(args.sweep)
-    _check_resumable(Path(args.out), sweep)
+    check_resumable(args.out, sweep)  # before anything is printed or run
     where = f"Dask scheduler {args.scheduler}" if args.scheduler else f"{args.workers} local worker(s)"
     print(
         f"sweep {sweep.name}: {len(sweep.tasks)} tasks, {len(sweep.render_keys)} physical configurations, "
@@ -89,19 +87,6 @@ def _sweep(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return 0 if s.complete else 1
-
-
-def _check_resumable(out: Path, sweep: Any) -> None:
-    """Before anything is printed or run: a results folder must hold this sweep (or none)."""
-    from .store import MANIFEST, read_manifest
-
-    if (out / MANIFEST).exists():
-        old = read_manifest(out)
-        if old["sweep_hash"] != sweep.sweep_hash:
-            raise UserError(
-                f"{out}: holds results of another sweep ({old['name']!r}, hash {old['sweep_hash']}); "
-                "choose another --out or remove it"
-            )
 
 
 #: A Dask scheduler address: ``[protocol://]host:port``.
