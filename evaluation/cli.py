@@ -5,11 +5,9 @@ from __future__ import annotations
 import argparse
 import re
 import sys
-from pathlib import Path
-from typing import Any
 
 from ..errors import UserError, require_extra
-from ..generator.cli import add_quiet_option
+from ..generator.cli import add_cache_options, add_quiet_option, results_cache
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -25,6 +23,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="results folder (resumed when it exists)")
     p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on this Dask distributed scheduler")
+    add_cache_options(p, default="DIR/renders")
     add_quiet_option(p)
     p.set_defaults(run=_sweep)
 
@@ -58,7 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from .engine import run_sweep
+    from .engine import check_resumable, run_sweep
     from .sweep import load_sweep
 
     if args.workers < 1:
@@ -72,7 +71,8 @@ def _sweep(args: argparse.Namespace) -> int:
     sweep = load_sweep(args.sweep)
     if sweep.renderer.extra is not None:
         require_extra(sweep.renderer.extra)
-    _check_resumable(Path(args.out), sweep)
+    check_resumable(args.out, sweep)  # before anything is printed or run
+    cache = results_cache(args)
     where = f"Dask scheduler {args.scheduler}" if args.scheduler else f"{args.workers} local worker(s)"
     print(
         f"sweep {sweep.name}: {len(sweep.tasks)} tasks, {len(sweep.render_keys)} physical configurations, "
@@ -81,11 +81,11 @@ def _sweep(args: argparse.Namespace) -> int:
     )
     if args.scheduler:
         try:
-            s = run_sweep(sweep, args.out, scheduler=args.scheduler, progress=not args.quiet)
+            s = run_sweep(sweep, args.out, scheduler=args.scheduler, progress=not args.quiet, cache_dir=cache)
         except (OSError, ValueError) as exc:
             raise UserError(f"--scheduler {args.scheduler}: cannot connect ({' '.join(str(exc).split())})") from None
     else:
-        s = run_sweep(sweep, args.out, workers=args.workers, progress=not args.quiet)
+        s = run_sweep(sweep, args.out, workers=args.workers, progress=not args.quiet, cache_dir=cache)
     print(
         f"sweep {sweep.name}: ran {s.ran} task(s), skipped {s.skipped} already done, {s.failed} failed; "
         f"renders: {s.rendered} rendered, {s.reused} task(s) re-used a render; {s.seconds:.1f} s; "
@@ -94,19 +94,6 @@ def _sweep(args: argparse.Namespace) -> int:
     )
     print(args.out)  # the result: the results folder (complete or not: the exit status says)
     return 0 if s.complete else 1
-
-
-def _check_resumable(out: Path, sweep: Any) -> None:
-    """Before anything is printed or run: a results folder must hold this sweep (or none)."""
-    from .store import MANIFEST, read_manifest
-
-    if (out / MANIFEST).exists():
-        old = read_manifest(out)
-        if old["sweep_hash"] != sweep.sweep_hash:
-            raise UserError(
-                f"{out}: holds results of another sweep ({old['name']!r}, hash {old['sweep_hash']}); "
-                "choose another --out or remove it"
-            )
 
 
 #: A Dask scheduler address: ``[protocol://]host:port``.

@@ -23,9 +23,11 @@ from pathlib import Path
 from typing import Any
 
 from .environment import code_version
-from .store import MANIFEST, ResultStore, read_manifest, set_aside_damaged_parts
+from ..errors import UserError
+from .store import MANIFEST, RENDERS, ResultStore, read_manifest, set_aside_damaged_parts
 from .sweep import Sweep, Task
-from .tasks import run_task
+from .metrics import ESTIMATE_COLUMNS
+from .tasks import noisy_capture, run_task
 
 
 @dataclasses.dataclass
@@ -75,6 +77,38 @@ def task_row(task: Task, result: dict[str, Any], *, sweep: Sweep, version: str) 
     )
     row.update(result)
     return row
+
+
+def check_resumable(out: str | Path, sweep: Sweep) -> None:
+    """Raise :class:`UserError` unless ``out`` holds no sweep or this one (checked before any work)."""
+    out = Path(out)
+    if (out / MANIFEST).exists():
+        old = read_manifest(out)
+        if old["sweep_hash"] != sweep.sweep_hash:
+            raise UserError(
+                f"{out}: holds results of another sweep ({old['name']!r}, hash {old['sweep_hash']}); "
+                "choose another --out or remove it"
+            )
+
+
+def task_captures(sweep: Sweep, task: Task, out: str | Path, cache_dir: str | Path | None | bool = True) -> tuple[Any, Any]:
+    """The noise-free capture of a finished task, from the render cache it ran with (``cache_dir``
+    as :func:`run_sweep` takes it; True: its results folder ``out``'s, a cache hit), and the
+    capture its estimator saw (the task's noise with its seed)."""
+    cache = Path(out) / RENDERS if cache_dir is True else (Path(cache_dir) if cache_dir else None)
+    clean = sweep.renderer.render(task.scene, cache_dir=cache)
+    return clean, noisy_capture(clean, task_payload(task, sweep))
+
+
+def row_estimate(row: Any) -> Any:
+    """The :class:`~nearlight.estimator.Estimate` a result row records (lamp, σ, Ks; a point lamp),
+    to re-synthesise it (:func:`nearlight.estimator.render_specular`)."""
+    import numpy as np
+
+    from ..estimator import Estimate
+
+    x, y, z, sigma, *ks = (float(row[c]) for c in ESTIMATE_COLUMNS)
+    return Estimate(method=str(row["method"]), lamp_position=np.array([x, y, z]), ks=np.array(ks), sigma=sigma)
 
 
 class _Deferred:
@@ -208,6 +242,7 @@ def run_sweep(
     workers: int = 1,
     scheduler: Any = None,
     progress: bool = True,
+    cache_dir: str | Path | None | bool = True,
 ) -> RunSummary:
     """Run (or resume) ``sweep`` into ``out``.
 
@@ -222,6 +257,11 @@ def run_sweep(
         Dask scheduler address (``tcp://HOST:PORT``) or a client: run there instead.
     progress : bool, optional
         tqdm progress bars with ETA on stderr.
+    cache_dir : path-like, True or None, optional
+        Render cache of renderers that cache on disk: True (default) is the
+        results folder's ``renders/`` (rows and figures refer to it; cluster
+        workers share the folder), a path another folder (on a cluster, one
+        every worker sees), None no cache (each task renders its own capture).
 
     Returns
     -------
@@ -238,13 +278,13 @@ def run_sweep(
     done = store.done_ids()
     todo = [t for t in sweep.tasks if t.task_id not in done]
     version = code_version()
-    cache_dir = str(store.cache_dir)
+    cache_dir = str(store.cache_dir if cache_dir is True else cache_dir) if cache_dir else None
     renderer = sweep.renderer
     executor = _executor(workers, scheduler)
     rendered = failed = 0
     render_errors: dict[str, str] = {}
     try:
-        keys = list(dict.fromkeys(t.render_key for t in todo)) if renderer.prerender else []
+        keys = list(dict.fromkeys(t.render_key for t in todo)) if renderer.prerender and cache_dir else []
         if keys:
             scenes = {t.render_key: t.scene for t in todo}
             futs = {executor.submit(renderer.prepare, scenes[k], cache_dir=Path(cache_dir)): k for k in keys}
@@ -289,7 +329,7 @@ def run_sweep(
         ran=ran,
         skipped=len(sweep.tasks) - ran,
         rendered=rendered,
-        reused=ran - rendered if renderer.prerender else 0,
+        reused=ran - rendered if renderer.prerender and cache_dir else 0,
         failed=failed,
         seconds=time.perf_counter() - t_start,
         complete=complete,

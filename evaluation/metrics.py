@@ -51,8 +51,11 @@ METRICS: dict[str, str] = {
     "specular_rmse_rel": "relative to peak",
     "runtime_s": "s",
 }
+#: The estimate itself (lamp position in m, σ in rad, Ks per channel), so a row can be re-synthesised.
+ESTIMATE_COLUMNS = ("est_lamp_x_m", "est_lamp_y_m", "est_lamp_z_m", "est_sigma", "est_ks_r", "est_ks_g", "est_ks_b")
 #: Other numeric columns of a row (not compared as regressions).
-INFO_COLUMNS = ("distance_signed_m", "lamp_distance_true_m", "sigma_truth", "crlb_lamp_m", "crlb_sigma_rel")
+INFO_COLUMNS = ("distance_signed_m", "lamp_distance_true_m", "sigma_truth", "crlb_lamp_m", "crlb_sigma_rel",
+                *ESTIMATE_COLUMNS)
 
 
 def _vec(x: Any) -> np.ndarray:

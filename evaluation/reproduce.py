@@ -1,25 +1,37 @@
-"""Paper reproduction: the paper's experiments on physically-based renders.
+"""Paper reproduction: the paper's experiments as sweep files, run by the sweep engine.
 
-``nearlight reproduce`` renders paper-like scenes with the generator, runs the
-estimator's methods on them, and writes ``paper_reproduction.md`` (tables and
-figures) and ``paper_reproduction.json`` (every number of the report) into one
-folder. Every number in the report comes from the run; the paper's own numbers
-are quoted in :data:`PAPER` with their section.
+``nearlight reproduce`` runs the sweeps of ``sweeps/paper/`` (:data:`EXPERIMENTS`)
+with :func:`nearlight.evaluation.engine.run_sweep` into ``OUT/sweeps/<profile>/<sweep
+name>/`` (one render cache per results folder, the engine's ``lamp_distance``
+axis, the task's seed through the generator's one seed rule, every row with the
+code version and commit, ``environment.json`` beside them), then writes
+``paper_reproduction.json`` (a view of those rows: every number of the report)
+and ``paper_reproduction.md`` (generated from the JSON) with figures that
+re-load each render from the engine's cache and re-synthesise each row's
+estimate. A second run resumes: finished tasks are not run again. The paper's
+own numbers are quoted in :data:`PAPER` with their section.
 
-Experiments (Hara, Nishino, Nakazawa, Ikeuchi 2002):
+Experiments (Hara, Nishino, Nakazawa, Ikeuchi 2002), one sweep file each:
 
-* ``board`` — §4.1: a large Ward board in the middle of the image, lamp at the
-  paper's (13, 2, 3). The paper gives neither unit nor camera; our layout is
-  in ``scenes/ward_board.yaml`` (one paper unit = :data:`PAPER_UNIT_M` metres,
-  the board centre at the origin, so the paper's coordinates are ours
-  divided by the unit). Fig. 3: input specular vs. re-synthesis.
-* ``bookend`` — §4.3: the blue bent plate with the paper's fitted σ** and Ks**
-  as the truth, Torrance–Sparrow, separated from the analyzer stack
-  (Fig. 5: original, diffuse, specular; Fig. 6: re-synthesis, composite).
-* ``curved`` — Fig. 7: a curved object, the same four panels.
-* ``near_vs_distant`` — the paper's motivation (its Fig. 1), measured: the
-  Torrance–Sparrow board with the lamp moved along a ray from near to far; the
-  ``distant`` baseline against the near-field methods.
+* ``board`` (``sweeps/paper/board.yaml``) — §4.1: a large Ward board in the
+  middle of the image, lamp at the paper's (13, 2, 3). The paper gives neither
+  unit nor camera; our layout is in ``scenes/ward_board.yaml`` (one paper unit
+  = :data:`PAPER_UNIT_M` metres, the board centre at the origin, so the
+  paper's coordinates are ours divided by the unit). Fig. 3: input specular
+  vs. re-synthesis.
+* ``bookend`` (``bookend.yaml``) — §4.3: the blue bent plate with the paper's
+  fitted σ** and Ks** as the truth, Torrance–Sparrow, seen by a noisy camera
+  and separated from the analyzer stack (Fig. 5: original, diffuse, specular;
+  Fig. 6: re-synthesis, composite).
+* ``curved`` (``curved.yaml``) — Fig. 7: a curved object, the same four panels.
+* ``near_vs_distant`` (``near_vs_distant.yaml``) — the paper's motivation (its
+  Fig. 1), measured: the Torrance–Sparrow board with the lamp moved along the
+  ray from the board centre (the engine's ``lamp_distance`` axis) from near to
+  far; the ``distant`` baseline against the near-field methods.
+
+Profiles: the sweep files as written are the ``full`` run (640×480, 8
+analyzer angles); ``--quick`` applies each file's ``quick`` profile (160×120, 4
+angles, fewer distances).
 """
 
 from __future__ import annotations
@@ -35,7 +47,6 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from ..capture import Capture
 from ..errors import UserError
 from ..files.figures import panel_grid, save_png, tonemap
 from ..files.jsonable import jsonable
@@ -61,140 +72,115 @@ PAPER: dict[str, dict[str, Any]] = {
 #: Metres per paper unit for the §4.1 layout of ``scenes/ward_board.yaml``.
 PAPER_UNIT_M = 0.05
 
-#: The camera of the real-object experiments (§4.3): a 12-bit sensor with a
-#: 20 000 e⁻ full well and 5 e⁻ read noise, the brightest pixel at 90 % of
-#: the full well. The §4.1 board stays noise-free, as the paper's render was.
-REAL_CAMERA = {"full_well": 20000.0, "read_noise": 5.0, "bits": 12, "saturation": "auto"}
+#: The sweep files' profile ``--quick`` applies; without it the files run as written (``full``).
+QUICK = "quick"
+FULL = "full"
 
-#: Methods run on every paper scene: report label -> (method, options), in report order.
-#: ``paper`` is the faithful reading of eq. 18 (E measured once, at the first
-#: stage's t*); ``paper (radiance)`` is the same alternating minimisation on the
-#: image itself, the reading under which refinement cannot favour a lamp that
-#: moves onto the surface (see nearlight.estimator.paper).
-NEAR_METHODS: dict[str, tuple[str, dict[str, Any]]] = {
-    "paper-init": ("paper-init", {}),
-    "paper": ("paper", {}),
-    "paper (radiance)": ("paper", {"energy": "radiance"}),
-    "full": ("full", {}),
-}
-ALL_METHODS: dict[str, tuple[str, dict[str, Any]]] = {"distant": ("distant", {}), **NEAR_METHODS}
+#: Metric columns of a result row that the report shows (NaN rows become null).
+REPORTED = ("lamp_position_error_m", "lamp_position_error_pct", "direction_error_deg", "distance_error_m",
+            "sigma_rel_error", "ks_rel_error", "specular_rmse_rel", "lamp_distance_true_m")  # fmt: skip
 
 
-@dataclasses.dataclass(frozen=True)
-class Profile:
-    """How big a run is.
+def sweeps_folder() -> Path:
+    """``sweeps/paper/`` of the checkout nearlight runs from (the package's root folder)."""
+    from .. import __file__ as root
+
+    folder = Path(root).resolve().parent / "sweeps" / "paper"
+    if not folder.is_dir():
+        raise UserError(f"{folder}: the paper's sweep files are missing (reproduce runs from a checkout of "
+                        "nearlight: `bash scripts/setup` installs it editable)")
+    return folder
+
+
+# --------------------------------------------------------------------------- one experiment's rows
+
+
+@dataclasses.dataclass
+class Experiment:
+    """One finished sweep of the reproduction: its tasks, result rows and folder.
 
     Attributes
     ----------
-    name : str
-    resolution : (int, int)
-        Image width and height, pixels.
-    analyzer_angles_deg : tuple of float
-    distances_m : tuple of float
-        Lamp distances of the near-vs-distant study, metres from the highlight.
+    key : str
+        The experiment's name in the report (``board``, ...).
+    sweep : Sweep
+    folder : Path
+        Its results folder (rows, ``environment.json``, render cache).
+    rows : pandas.DataFrame
+        Every task's row, in task order.
+    report_dir : Path
+        The report folder (paths in the document are relative to it).
+    cache_dir : path-like, True or None
+        The render cache the sweep ran with (True: the results folder's).
     """
 
-    name: str
-    resolution: tuple[int, int]
-    analyzer_angles_deg: tuple[float, ...]
-    distances_m: tuple[float, ...]
+    key: str
+    sweep: Any
+    folder: Path
+    rows: Any
+    report_dir: Path
+    cache_dir: str | Path | None | bool = True
 
+    def task(self, row: Any) -> Any:
+        return self.sweep.tasks[int(row["task_index"])]
 
-#: ``--quick``: what the tests run (small images, a 4-angle polarization camera).
-QUICK = Profile("quick", (160, 120), (0.0, 45.0, 90.0, 135.0), (0.15, 0.3, 0.6, 1.2))
-#: The full run committed under ``reports/``.
-FULL = Profile(
-    "full",
-    (640, 480),
-    (0.0, 22.5, 45.0, 67.5, 90.0, 112.5, 135.0, 157.5),
-    (0.1, 0.15, 0.2, 0.3, 0.45, 0.6, 0.9, 1.2, 2.0),
-)
+    def captures(self, row: Any) -> tuple[Any, Any]:
+        """The noise-free render of ``row`` (from the engine's cache) and the capture its method saw."""
+        from .engine import task_captures
 
-
-def scene_path(name: str) -> Path:
-    """Path of a shipped scene file (``scenes/NAME``)."""
-    from importlib.resources import files
-
-    path = Path(str(files("nearlight.scenes") / name))
-    if not path.is_file():
-        raise UserError(f"{path}: shipped scene missing (reinstall nearlight)")
-    return path
-
-
-# --------------------------------------------------------------------------- running
-
-
-class _Run:
-    """Shared state of one reproduction: profile, folders, renders, progress."""
-
-    def __init__(self, out: Path, profile: Profile, progress: bool):
-        from tqdm.auto import tqdm
-
-        self.out, self.profile = out, profile
-        self.figures = out / "figures"
-        self.cache = out / ".render-cache"
-        self.bar = tqdm(total=3 + len(profile.distances_m), desc="reproduce", unit="scene", disable=not progress)
-
-    def render(self, scene_file: str, overrides: Mapping[str, Any] | None = None) -> Capture:
-        """Noise-free capture of a shipped scene at this profile's size.
-
-        Samples per pixel stay the scene's: the generator traces pixel-centre
-        rays, so one sample is exact for direct lighting.
-        """
-        from ..generator import load_scene, render_clean
-
-        p = self.profile
-        sets = {
-            "camera.resolution": list(p.resolution),
-            "capture.analyzer_angles_deg": list(p.analyzer_angles_deg),
-            **(overrides or {}),
-        }
-        scene = load_scene(scene_path(scene_file), overrides=sets)
-        self.bar.set_postfix_str(scene_file)
-        return render_clean(scene, cache_dir=self.cache, progress=False)
-
-    def estimate(self, capture: Capture, methods: Mapping[str, tuple[str, dict[str, Any]]]) -> dict[str, Any]:
-        """``{label: Estimate}`` for each labelled ``(method, options)``."""
-        from ..estimator import estimate
-
-        return {label: estimate(capture, method=m, **opts) for label, (m, opts) in methods.items()}
+        return task_captures(self.sweep, self.task(row), self.folder, self.cache_dir)
 
     def figure(self, name: str, panels: list, **kw: Any) -> str:
-        """Write a panel figure; return its path relative to the report."""
-        return str(panel_grid(panels, self.figures / name, **kw).relative_to(self.out))
+        """Write a panel figure into ``figures/``; return its path relative to the report."""
+        return str(panel_grid(panels, self.report_dir / "figures" / name, **kw).relative_to(self.report_dir))
+
+    def header(self) -> dict[str, Any]:
+        """Where the experiment's numbers come from: sweep file, results folder, scene, code versions."""
+        from ..files.yamlfile import load_yaml_file
+
+        source = Path(self.sweep.source)
+        scene = load_yaml_file(source, what="sweep file")["scene"]
+        root = sweeps_folder().parent.parent
+        return {
+            "sweep": str(source.relative_to(root)),
+            "results": str(self.folder.relative_to(self.report_dir)),
+            "scene": str((source.parent / scene).resolve().relative_to(root)) if isinstance(scene, str) else scene,
+            "code_versions": sorted(set(self.rows["code_version"].astype(str))),
+        }
 
 
-def _errors(capture: Capture, est: Any) -> dict[str, float]:
-    """Lamp and reflectance errors of one estimate against the capture's truth."""
-    from .tasks import score
-
-    s = score(capture, est)
-    return {k: (None if math.isnan(s[k]) else float(s[k])) for k in (
-        "lamp_position_error_m", "lamp_position_error_pct", "direction_error_deg", "distance_error_m",
-        "sigma_rel_error", "ks_rel_error", "specular_rmse_rel", "lamp_distance_true_m")}  # fmt: skip
+def _number(x: Any) -> float | None:
+    x = float(x)
+    return None if math.isnan(x) else x
 
 
-def _method_row(capture: Capture, est: Any) -> dict[str, Any]:
-    """One method's estimate and errors; ``None`` where a metric does not apply
-    (σ and Ks errors against a Ward truth).
+def _method_row(row: Any, truth: Mapping[str, Any]) -> dict[str, Any]:
+    """One result row as the report shows it: the estimate, its errors (``None`` where a metric
+    does not apply, e.g. σ and Ks against a Ward truth), status and provenance.
 
     Estimators fold the (unknown) lamp intensity reaching the surface into Ks;
-    ``ks_in_truth_units`` divides it back out with the true intensity
-    (``I_lamp / 2`` behind the ideal polarizer) so that it reads beside the
-    truth and the paper's Ks**.
+    ``ks_in_truth_units`` divides it back out with the true intensity (``I_lamp / 2``
+    behind the ideal polarizer) so that it reads beside the truth and the paper's Ks**.
     """
-    reaching = through_polarizer(capture.truth["lamp_intensity"])
+    from .engine import row_estimate
+
+    est = row_estimate(row)
+    reaching = through_polarizer(truth["lamp_intensity"])
     return {
-        "lamp_position": [float(v) for v in est.lamp_position],
-        "sigma": float(est.sigma),
-        "ks": [float(v) for v in est.ks],
-        "ks_in_truth_units": [float(v) for v in np.asarray(est.ks) / reaching],
-        "runtime_s": float(sum(est.timings.values())),
-        **_errors(capture, est),
+        "status": str(row["status"]),
+        **({"error": str(row["error"])} if row["status"] != "ok" else {}),
+        "lamp_position": [_number(v) for v in est.lamp_position],
+        "sigma": _number(est.sigma),
+        "ks": [_number(v) for v in est.ks],
+        "ks_in_truth_units": [_number(v) for v in np.asarray(est.ks) / reaching],
+        "runtime_s": _number(row["runtime_s"]),
+        **{k: _number(row[k]) for k in REPORTED},
+        "task_id": str(row["task_id"]),
+        "code_version": str(row["code_version"]),
     }
 
 
-def _specular_views(capture: Capture) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _specular_views(capture: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Original (no analyzer), separated diffuse and specular images, ``[H, W, 3]`` each."""
     from ..estimator import separate
 
@@ -202,52 +188,61 @@ def _specular_views(capture: Capture) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return spec + diff, diff, spec
 
 
-def _resynth(capture: Capture, est: Any) -> np.ndarray:
+def _resynth(capture: Any, row: Any) -> np.ndarray:
+    """The specular image a row's estimate predicts (black for a failed task)."""
     from ..estimator import render_specular
+    from .engine import row_estimate
 
-    return np.nan_to_num(np.asarray(render_specular(capture, est), dtype=float))
+    if row["status"] != "ok":
+        return np.zeros((capture.height, capture.width, 3))
+    return np.nan_to_num(np.asarray(render_specular(capture, row_estimate(row)), dtype=float))
 
 
-def board_experiment(run: _Run) -> dict[str, Any]:
-    """§4.1: the Ward board, lamp at the paper's (13, 2, 3) units."""
-    cap = run.render("ward_board.yaml")
-    ests = run.estimate(cap, NEAR_METHODS)
-    _, _, spec = _specular_views(cap)
+def _truth(capture: Any) -> dict[str, Any]:
+    return {"lamp_position": capture.truth["lamp_position"], "bsdf": capture.truth["bsdf"]}
+
+
+# --------------------------------------------------------------------------- report sections (views of rows)
+
+
+def board_view(ex: Experiment) -> dict[str, Any]:
+    """§4.1: the Ward board, lamp at the paper's (13, 2, 3) units (Fig. 3)."""
+    rows = [r for _, r in ex.rows.iterrows()]
+    _, seen = ex.captures(rows[0])
+    _, _, spec = _specular_views(seen)
     white = float(np.percentile(spec[spec > 0], 99.5))
-    fig = run.figure(
+    fig = ex.figure(
         "fig3_board.png",
         [("(a) input specular", tonemap(spec, white=white))]
-        + [(f"(b) re-synthesised, {m}", tonemap(_resynth(cap, e), white=white)) for m, e in ests.items()],
+        + [(f"(b) re-synthesised, {r['method']}", tonemap(_resynth(seen, r), white=white)) for r in rows],
         title="§4.1 Ward board (paper Fig. 3)",
     )
     return {
-        "scene": "scenes/ward_board.yaml",
-        "truth": {"lamp_position": cap.truth["lamp_position"], "bsdf": cap.truth["bsdf"]},
+        **ex.header(),
+        "truth": _truth(seen),
         "paper_unit_m": PAPER_UNIT_M,
-        "methods": {m: _method_row(cap, e) for m, e in ests.items()},
+        "methods": {r["method"]: _method_row(r, seen.truth) for r in rows},
         "figures": [fig],
     }
 
 
-def _object_experiment(run: _Run, scene_file: str, key: str, title: str) -> dict[str, Any]:
-    """Separation, estimation, re-synthesis and composite of one object (paper Figs. 5–7),
-    seen by :data:`REAL_CAMERA` (noise seed 0)."""
-    from ..generator import add_camera_noise
-
-    cap = add_camera_noise(run.render(scene_file), noise=REAL_CAMERA, seed=0)
-    ests = run.estimate(cap, NEAR_METHODS)
-    original, diffuse, spec = _specular_views(cap)
+def object_view(ex: Experiment, title: str) -> dict[str, Any]:
+    """Separation, estimation, re-synthesis (``full``) and composite of one object (paper Figs. 5–7)."""
+    rows = [r for _, r in ex.rows.iterrows()]
+    task = ex.task(rows[0])
+    _, seen = ex.captures(rows[0])
+    original, diffuse, spec = _specular_views(seen)
     white = float(np.percentile(original[original > 0], 99.5))
-    synth = _resynth(cap, ests["full"])
+    synth = _resynth(seen, next(r for r in rows if r["method"] == "full"))
     figs = [
-        run.figure(
-            f"{key}_separation.png",
+        ex.figure(
+            f"{ex.key}_separation.png",
             [("(a) original", tonemap(original, white=white)), ("(b) diffuse", tonemap(diffuse, white=white)),
              ("(c) specular", tonemap(spec, white=white))],  # fmt: skip
             title=f"{title}: polarization separation",
         ),
-        run.figure(
-            f"{key}_synthesis.png",
+        ex.figure(
+            f"{ex.key}_synthesis.png",
             [("input specular", tonemap(spec, white=white)), ("synthesised specular (full)", tonemap(synth, white=white)),
              ("synthesised + separated diffuse", tonemap(synth + diffuse, white=white)),
              ("original", tonemap(original, white=white))],  # fmt: skip
@@ -255,64 +250,56 @@ def _object_experiment(run: _Run, scene_file: str, key: str, title: str) -> dict
         ),
     ]
     return {
-        "scene": f"scenes/{scene_file}",
-        "truth": {"lamp_position": cap.truth["lamp_position"], "bsdf": cap.truth["bsdf"]},
-        "camera_noise": REAL_CAMERA,
-        "methods": {m: _method_row(cap, e) for m, e in ests.items()},
+        **ex.header(),
+        "truth": _truth(seen),
+        "camera_noise": task.noise,
+        "seed": task.seed,
+        "methods": {r["method"]: _method_row(r, seen.truth) for r in rows},
         "figures": figs,
     }
 
 
-def bookend_experiment(run: _Run) -> dict[str, Any]:
-    """§4.3: the blue bookend (Figs. 5 and 6)."""
-    return _object_experiment(run, "bookend.yaml", "bookend", "§4.3 bookend (paper Figs. 5–6)")
+def near_vs_distant_view(ex: Experiment) -> dict[str, Any]:
+    """Error vs the lamp's distance from the board centre (the ``lamp_distance`` axis), per method."""
+    from ..files.dotted import get_dotted
 
-
-def curved_experiment(run: _Run) -> dict[str, Any]:
-    """§4.3, Fig. 7: a curved object."""
-    return _object_experiment(run, "torus.yaml", "curved", "§4.3 curved object (paper Fig. 7)")
-
-
-def near_vs_distant_experiment(run: _Run) -> dict[str, Any]:
-    """The lamp moved along a ray from the board's highlight; error vs distance per method."""
-    from ..generator import load_scene
-
-    base = load_scene(scene_path("ts_board.yaml"))
-    centre = np.asarray(base.object.position, dtype=float)
-    direction = np.asarray(base.lamp.position, dtype=float) - centre
-    direction /= np.linalg.norm(direction)
-    rows = []
-    for d in run.profile.distances_m:
-        lamp = centre + d * direction
-        cap = run.render("ts_board.yaml", {"lamp.position": lamp.tolist()})
-        for m, est in run.estimate(cap, ALL_METHODS).items():
-            rows.append({"distance_m": d, "method": m, **_method_row(cap, est)})
-        run.bar.update()
-    fig = _distance_plot(rows, run.figures / "near_vs_distant.png")
+    out, truths = [], {}
+    for _, r in ex.rows.iterrows():
+        task = ex.task(r)
+        if task.render_key not in truths:
+            truths[task.render_key] = ex.captures(r)[0].truth
+        out.append({"lamp_distance_m": float(r["lamp_distance"]), "method": r["method"],
+                    **_method_row(r, truths[task.render_key])})  # fmt: skip
+    first = ex.sweep.tasks[0].scene
+    centre = ex.sweep.renderer.object_centre(first)
+    direction = np.asarray(get_dotted(first, ex.sweep.renderer.lamp_key), dtype=float) - centre
+    fig = _distance_plot(out, [m.label for m in ex.sweep.methods], ex.report_dir / "figures" / "near_vs_distant.png")
     return {
-        "scene": "scenes/ts_board.yaml",
-        "ray": {"from": centre.tolist(), "direction": direction.tolist()},
-        "rows": rows,
-        "figures": [str(fig.relative_to(run.out))],
+        **ex.header(),
+        "distance": "lamp_distance_m: metres from the board centre along the ray to the lamp (the sweep's "
+        "lamp_distance axis); lamp_distance_true_m: from the highlight point, which the errors are relative to",
+        "ray": {"from": centre.tolist(), "direction": (direction / np.linalg.norm(direction)).tolist()},
+        "rows": out,
+        "figures": [str(fig.relative_to(ex.report_dir))],
     }
 
 
-def _distance_plot(rows: list[dict[str, Any]], path: Path) -> Path:
+def _distance_plot(rows: list[dict[str, Any]], methods: list[str], path: Path) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
-    for m in ALL_METHODS:
+    for m in methods:
         sel = [r for r in rows if r["method"] == m]
-        d = [r["distance_m"] for r in sel]
+        d = [r["lamp_distance_m"] for r in sel]
         axes[0].plot(d, [r["lamp_position_error_pct"] for r in sel], "o-", label=m)
         axes[1].plot(d, [r["direction_error_deg"] for r in sel], "o-", label=m)
     for ax, label in zip(axes, ("lamp position error (% of distance)", "direction error (deg)")):
         ax.set_xscale("log")
         ax.set_yscale("symlog", linthresh=0.1)
-        ax.set_xlabel("lamp distance from the highlight (m)")
+        ax.set_xlabel("lamp distance from the board centre (m)")
         ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend()
@@ -321,17 +308,18 @@ def _distance_plot(rows: list[dict[str, Any]], path: Path) -> Path:
     return save_png(fig, path)
 
 
-EXPERIMENTS: dict[str, Callable[[_Run], dict[str, Any]]] = {
-    "board": board_experiment,
-    "bookend": bookend_experiment,
-    "curved": curved_experiment,
-    "near_vs_distant": near_vs_distant_experiment,
+#: The experiments in report order: key -> (sweep file in ``sweeps/paper/``, view of its rows).
+EXPERIMENTS: dict[str, tuple[str, Callable[[Experiment], dict[str, Any]]]] = {
+    "board": ("board.yaml", board_view),
+    "bookend": ("bookend.yaml", lambda ex: object_view(ex, "§4.3 bookend (paper Figs. 5–6)")),
+    "curved": ("curved.yaml", lambda ex: object_view(ex, "§4.3 curved object (paper Fig. 7)")),
+    "near_vs_distant": ("near_vs_distant.yaml", near_vs_distant_view),
 }
 
 
-#: Every file ``reproduce`` writes into its folder, with its kind (see
-#: :mod:`nearlight.files.outputs`): an existing file there is replaced only when it
-#: is of that kind; other files in the folder are left alone.
+#: Every file ``reproduce`` writes into its folder besides the sweeps' results folders, with its kind
+#: (see :mod:`nearlight.files.outputs`): an existing file there is replaced only when it is of that
+#: kind; other files in the folder are left alone.
 REPORT_FILES: dict[str, str] = {
     "paper_reproduction.json": "reproduction-json",
     "paper_reproduction.md": "reproduction-md",
@@ -340,20 +328,51 @@ REPORT_FILES: dict[str, str] = {
 }  # fmt: skip
 
 
-def reproduce(out: str | Path, *, quick: bool = False, progress: bool = True) -> Path:
-    """Run every experiment and write the report.
+def load_sweeps(*, quick: bool = False) -> dict[str, Any]:
+    """``{experiment: Sweep}`` of :data:`EXPERIMENTS`, with the ``quick`` profile when asked."""
+    from .sweep import load_sweep
+
+    folder = sweeps_folder()
+    return {key: load_sweep(folder / file, profile=QUICK if quick else None) for key, (file, _) in EXPERIMENTS.items()}
+
+
+def _profile(name: str, sweeps: Mapping[str, Any]) -> dict[str, Any]:
+    """What sets a run's size, read from the sweeps: image size, analyzer angles, the distances."""
+    from ..files.dotted import get_dotted
+
+    scene = sweeps["board"].tasks[0].scene
+    return {
+        "name": name,
+        "resolution": get_dotted(scene, "camera.resolution"),
+        "analyzer_angles_deg": [float(a) for a in get_dotted(scene, "capture.analyzer_angles_deg")],
+        "distances_m": [float(v) for _, v in sweeps["near_vs_distant"].axes["lamp_distance"]],
+    }
+
+
+def reproduce(
+    out: str | Path, *, quick: bool = False, workers: int = 1, progress: bool = True,
+    cache_dir: str | Path | None | bool = True,
+) -> Path:
+    """Run (or resume) every experiment's sweep into ``out`` and write the report.
 
     Parameters
     ----------
     out : path-like
-        Report folder (created). An earlier report there is replaced, file by
-        file (:data:`REPORT_FILES`), only where each file is of the kind
-        ``reproduce`` writes; anything else there is refused before any work
-        and left untouched. Renders are re-used from its ``.render-cache``.
+        Report folder (created). The sweeps' results go to
+        ``out/sweeps/<profile>/<sweep name>/`` (resumed when there). An earlier
+        report there is replaced, file by file (:data:`REPORT_FILES`), only
+        where each file is of the kind ``reproduce`` writes; anything else there,
+        or a results folder holding another sweep, is refused before any work
+        and left untouched.
     quick : bool, optional
-        Small images and a 4-angle camera (:data:`QUICK`), for tests.
+        Each sweep file's ``quick`` profile (small images, a 4-angle camera), for tests.
+    workers : int, optional
+        Local worker processes of the engine; 1 runs in this process.
     progress : bool, optional
-        Show a progress bar on stderr.
+        The engine's progress bars on stderr.
+    cache_dir : path-like, True or None, optional
+        The render cache, as :func:`~nearlight.evaluation.engine.run_sweep` takes
+        it (True: each results folder's ``renders/``); the figures re-load renders from it.
 
     Returns
     -------
@@ -361,40 +380,53 @@ def reproduce(out: str | Path, *, quick: bool = False, progress: bool = True) ->
         ``out / "paper_reproduction.md"``.
     """
     from ..files.outputs import check_files_in, check_folder, make_folder
+    from .engine import check_resumable, run_sweep
+    from .environment import code_version, collect
+    from .reproduce_report import markdown
+    from .store import read_results
 
     out = Path(out)
     check_folder(out, what="report folder")
     check_folder(out / "figures", what="figures folder")
-    check_folder(out / ".render-cache", what="render cache folder")
     check_files_in(out, REPORT_FILES)
-    make_folder(out, what="report folder")
+    sweeps = load_sweeps(quick=quick)
     profile = QUICK if quick else FULL
-    run = _Run(out, profile, progress)
+    folders = {key: out / "sweeps" / profile / s.name for key, s in sweeps.items()}
+    for key, s in sweeps.items():
+        check_folder(folders[key], what="results folder")
+        check_resumable(folders[key], s)
+    make_folder(out, what="report folder")
     start = time.perf_counter()
     results: dict[str, Any] = {}
-    for name, experiment in EXPERIMENTS.items():
-        results[name] = experiment(run)
-        if name != "near_vs_distant":
-            run.bar.update()
-    run.bar.close()
-    from .environment import code_version
-    from .environment import collect
-
+    for key, s in sweeps.items():
+        summary = run_sweep(s, folders[key], workers=workers, progress=progress, cache_dir=cache_dir)
+        if not summary.complete:
+            raise UserError(f"{folders[key]}: sweep {s.name} is incomplete; run `nearlight reproduce` again")
+        rows, _ = read_results(folders[key])
+        results[key] = EXPERIMENTS[key][1](Experiment(key, s, folders[key], rows, out, cache_dir))
     doc = {
         "nearlight_version": __version__,
         "code_version": code_version(),
         "environment": collect(),
-        "profile": dataclasses.asdict(profile),
+        "profile": _profile(profile, sweeps),
         "elapsed_s": time.perf_counter() - start,
         "paper": PAPER,
         "experiments": results,
     }
     (out / "paper_reproduction.json").write_text(json.dumps(jsonable(doc), indent=2) + "\n")
     md = out / "paper_reproduction.md"
-    from .reproduce_report import markdown
-
     md.write_text(markdown(doc))
     return md
+
+
+def failures(doc: Mapping[str, Any]) -> list[str]:
+    """``"experiment: row: error"`` for every failed task of a reproduction document."""
+    lines = []
+    for name, ex in doc["experiments"].items():
+        labelled = [(m, r) for m, r in ex.get("methods", {}).items()]
+        labelled += [(f"{r['method']} at {r['lamp_distance_m']:g} m", r) for r in ex.get("rows", [])]
+        lines += [f"{name}: {label}: {r['error']}" for label, r in labelled if r["status"] != "ok"]
+    return lines
 
 
 def finite_numbers(doc: Any) -> bool:

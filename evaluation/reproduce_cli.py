@@ -4,17 +4,22 @@ from __future__ import annotations
 
 import argparse
 
+from ..generator.cli import add_cache_options, add_quiet_option
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "reproduce",
         help="reproduce the paper's experiments on physically-based renders",
-        description="Render paper-like scenes, run every estimator method, and write "
-        "paper_reproduction.md (+ .json and figures) into --out.",
+        description="Run (or resume) the paper's experiments, the sweep files of sweeps/paper/, into "
+        "--out/sweeps/ and write paper_reproduction.md (+ .json and figures) into --out.",
     )
     p.add_argument("--out", default="out/reproduce", help="report folder (default: %(default)s)")
-    p.add_argument("--quick", action="store_true", help="small images and 4 analyzer angles (under 2 minutes)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--quick", action="store_true",
+                   help="each sweep file's quick profile: small images and 4 analyzer angles (under 2 minutes)")
+    p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
+    add_cache_options(p, default="OUT/sweeps/<profile>/<sweep>/renders")
+    add_quiet_option(p)
     p.add_argument("--against", metavar="DIR",
                    help="then compare every table with DIR/paper_reproduction.json (same profile) within the "
                    "tolerances the report states; exit 1 if any number differs")
@@ -45,19 +50,31 @@ def _reference(folder: str, profile: str) -> dict:
 
 
 def _run(args: argparse.Namespace) -> int:
+    """Exit 1 when a task failed or, with ``--against``, a number differs; else 0."""
     import json
+    import sys
 
-    from .reproduce import FULL, QUICK, reproduce
+    from ..errors import UserError, require_extra
+    from ..generator.cli import results_cache
+    from .reproduce import FULL, QUICK, failures, reproduce
 
-    ref = _reference(args.against, (QUICK if args.quick else FULL).name) if args.against else None
-    md = reproduce(args.out, quick=args.quick, progress=not args.no_progress)
+    require_extra("render")
+    if args.workers < 1:
+        raise UserError(f"--workers: expected a positive integer, got {args.workers}")
+    ref = _reference(args.against, QUICK if args.quick else FULL) if args.against else None
+    md = reproduce(args.out, quick=args.quick, workers=args.workers, progress=not args.quiet,
+                   cache_dir=results_cache(args))
     print(md)
+    doc = json.loads((md.parent / "paper_reproduction.json").read_text())
+    failed = failures(doc)
+    for line in failed:
+        print(f"nearlight: failed task: {line}", file=sys.stderr)
     if ref is None:
-        return 0
+        return 1 if failed else 0
     from .reproduce_check import check
 
-    lines, misses = check(json.loads((md.parent / "paper_reproduction.json").read_text()), ref)
+    lines, misses = check(doc, ref)
     print(f"against {args.against} (made by {ref.get('code_version', ref.get('nearlight_version'))}):")
     for line in lines:
         print(f"  {line}")
-    return 1 if misses else 0
+    return 1 if misses or failed else 0

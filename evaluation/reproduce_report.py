@@ -1,8 +1,9 @@
 """Markdown of the paper reproduction, from its JSON document only.
 
 Every number printed here is read from the document that
-:func:`nearlight.evaluation.reproduce.reproduce` wrote; the paper's numbers come
-from its ``paper`` section (quoted with their section there).
+:func:`nearlight.evaluation.reproduce.reproduce` wrote (itself a view of the
+sweeps' result rows); the paper's numbers come from its ``paper`` section
+(quoted with their section there).
 """
 
 from __future__ import annotations
@@ -30,6 +31,17 @@ def _figures(section: dict[str, Any]) -> str:
     return "\n\n".join(f"![{f}]({f})" for f in section["figures"])
 
 
+def _source(section: dict[str, Any]) -> str:
+    """Where a section's rows come from: its sweep file, results folder and code versions."""
+    return (f"Sweep `{section['sweep']}` (scene `{section['scene']}`), rows in `{section['results']}/` "
+            f"(made by {', '.join(section['code_versions'])}).")
+
+
+def _failed(r: dict[str, Any], columns: int) -> list[str] | None:
+    """The cells of a failed task's row (its error in the first), or None when it succeeded."""
+    return None if r["status"] == "ok" else [f"failed: {r['error']}"] + [""] * (columns - 1)
+
+
 def board_section(doc: dict[str, Any]) -> str:
     ex, paper = doc["experiments"]["board"], doc["paper"]["board"]
     unit = ex["paper_unit_m"]
@@ -42,13 +54,13 @@ def board_section(doc: dict[str, Any]) -> str:
          f"{100 * paper_err / np.linalg.norm(true_u):.1f} %", f"{paper['sigma']} (σ**)", _vec(paper["ks"], 2)],
     ]  # fmt: skip
     for m, r in ex["methods"].items():
-        rows.append([f"nearlight `{m}`", _vec(np.asarray(r["lamp_position"]) / unit),
+        rows.append([f"nearlight `{m}`", *(_failed(r, 5) or [_vec(np.asarray(r["lamp_position"]) / unit),
                      f"{r['lamp_position_error_m'] / unit:.2f}", f"{r['lamp_position_error_pct']:.2f} %",
-                     f"{r['sigma']:.4f}", _vec(r["ks_in_truth_units"], 3)])  # fmt: skip
+                     f"{r['sigma']:.4f}", _vec(r["ks_in_truth_units"], 3)])])  # fmt: skip
     bsdf = ex["truth"]["bsdf"]
     return f"""## 1. Synthetic board, Ward BRDF (paper §4.1, Fig. 3)
 
-Scene `{ex['scene']}`: a Ward board (ρs = {bsdf['rho_s']}, σ' = {bsdf['alpha']}) in the middle of
+{_source(ex)} A Ward board (ρs = {bsdf['rho_s']}, σ' = {bsdf['alpha']}) in the middle of
 the image. The paper gives no unit and no camera. We take one paper unit = {unit} m, the
 board centre at the origin and the lamp at the paper's (13, 2, 3) units; the camera
 layout is in the scene file. Positions below are in paper units; the error is
@@ -71,9 +83,9 @@ def object_section(doc: dict[str, Any], key: str, heading: str) -> str:
     paper = doc["paper"]["bookend"]
     rows = [["truth", _vec(ex["truth"]["lamp_position"]), "", "", f"{bsdf['sigma']}", _vec(bsdf["ks"], 2), "", ""]]
     for m, r in ex["methods"].items():
-        rows.append([f"`{m}`", _vec(r["lamp_position"]), f"{1000 * r['lamp_position_error_m']:.1f}",
+        rows.append([f"`{m}`", *(_failed(r, 7) or [_vec(r["lamp_position"]), f"{1000 * r['lamp_position_error_m']:.1f}",
                      f"{r['lamp_position_error_pct']:.2f} %", f"{r['sigma']:.4f}", _vec(r["ks_in_truth_units"], 3),
-                     f"{100 * r['sigma_rel_error']:.1f} %", f"{100 * r['ks_rel_error']:.1f} %"])  # fmt: skip
+                     f"{100 * r['sigma_rel_error']:.1f} %", f"{100 * r['ks_rel_error']:.1f} %"])])  # fmt: skip
     note = ""
     if key == "bookend":
         note = (
@@ -84,9 +96,9 @@ def object_section(doc: dict[str, Any], key: str, heading: str) -> str:
         )
     return f"""## {heading}
 
-Scene `{ex['scene']}`, Torrance–Sparrow, seen by a camera with noise like the
+{_source(ex)} Torrance–Sparrow, seen by a camera with noise like the
 paper's real captures ({noise['bits']}-bit, full well {noise['full_well']:.0f} e⁻, read noise
-{noise['read_noise']:g} e⁻, brightest pixel at 90 % of the full well), separated from the
+{noise['read_noise']:g} e⁻, brightest pixel at 90 % of the full well; noise seed {ex['seed']}), separated from the
 analyzer stack (figures: the per-pixel cos 2θ fit; each method: its default separation).
 Lamp positions in metres, world frame.
 {note}
@@ -99,17 +111,26 @@ Lamp positions in metres, world frame.
 def distance_section(doc: dict[str, Any]) -> str:
     ex = doc["experiments"]["near_vs_distant"]
     methods = list(dict.fromkeys(r["method"] for r in ex["rows"]))
-    dists = sorted({r["distance_m"] for r in ex["rows"]})
-    by = {(r["distance_m"], r["method"]): r for r in ex["rows"]}
-    rows = [[f"{d:g}"] + [f"{by[d, m]['lamp_position_error_pct']:.2f} % / {by[d, m]['direction_error_deg']:.2f}°"
-                          for m in methods] for d in dists]  # fmt: skip
+    dists = sorted({r["lamp_distance_m"] for r in ex["rows"]})
+    by = {(r["lamp_distance_m"], r["method"]): r for r in ex["rows"]}
+
+    def cell(r: dict[str, Any]) -> str:
+        if r["status"] != "ok":
+            return f"failed: {r['error']}"
+        return f"{r['lamp_position_error_pct']:.2f} % / {r['direction_error_deg']:.2f}°"
+
+    highlight = {d: next((r["lamp_distance_true_m"] for m in methods if (r := by[d, m])["status"] == "ok"), None)
+                 for d in dists}  # fmt: skip
+    rows = [[f"{d:g}", _num(highlight[d], ".3f")] + [cell(by[d, m]) for m in methods] for d in dists]
     return f"""## 4. Near vs. distant (the paper's Fig. 1, measured)
 
-Scene `{ex['scene']}`; the lamp moves along the ray from {_vec(ex['ray']['from'])} towards
-{_vec(ex['ray']['direction'])}. Each cell: lamp position error as % of the lamp's distance /
-direction error seen from the highlight.
+{_source(ex)} The lamp moves along the ray from the board centre
+{_vec(ex['ray']['from'])} towards {_vec(ex['ray']['direction'])} (the sweep's `lamp_distance`
+axis). First column: the lamp's distance from the board centre; second: its distance from the
+highlight point, which the errors are relative to. Each cell: lamp position error as % of the
+lamp's distance from the highlight / direction error seen from the highlight.
 
-{_table(["distance (m)"] + [f"`{m}`" for m in methods], rows)}
+{_table(["from the board centre (m)", "from the highlight (m)"] + [f"`{m}`" for m in methods], rows)}
 
 {_figures(ex)}
 """
@@ -127,10 +148,12 @@ def markdown(doc: dict[str, Any]) -> str:
 Hara, Nishino, Nakazawa, Ikeuchi, "Estimating Light Position and Surface Reflectance
 from Specular Reflection under Perspective Projection", reproduced on Mitsuba 3
 renders by nearlight {doc.get('code_version', doc['nearlight_version'])}{where}. Profile `{p['name']}`:
-{p['resolution'][0]}×{p['resolution'][1]} pixels, {len(p['analyzer_angles_deg'])} analyzer angles; the run took
-{doc['elapsed_s']:.0f} s. Every number below was produced by this run (see
-`paper_reproduction.json`, which also records the environment); the paper's numbers
-are quoted with their section. {tolerance_text()}
+{p['resolution'][0]}×{p['resolution'][1]} pixels, {len(p['analyzer_angles_deg'])} analyzer angles; this run took
+{doc['elapsed_s']:.0f} s (tasks already done by an earlier run are not run again). Each
+experiment is a sweep file of `sweeps/paper/` run by the sweep engine; every number below is
+read from its result rows (see `paper_reproduction.json`, which also records the
+environment; each results folder has its `environment.json`); the paper's numbers are
+quoted with their section. {tolerance_text()}
 """
     return "\n".join([
         head,

@@ -32,6 +32,7 @@ RESULTS = "results.parquet"
 MANIFEST = "sweep.json"
 ENVIRONMENT = "environment.json"
 PARTS = "parts"
+RENDERS = "renders"
 
 
 class ResultStore:
@@ -83,7 +84,7 @@ class ResultStore:
     @property
     def cache_dir(self) -> Path:
         """The render cache folder."""
-        return self.out / "renders"
+        return self.out / RENDERS
 
     def done_ids(self) -> set[str]:
         """Ids of the tasks whose row is on disk."""

@@ -54,6 +54,12 @@ class _Method(BaseModel):
     options: dict[str, Any] = Field(default_factory=dict)
 
 
+class _Profile(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    set: dict[str, Any] = Field(default_factory=dict)
+    axes: dict[str, list[Any] | dict[str, Any]] = Field(default_factory=dict)
+
+
 class _SweepFile(BaseModel):
     model_config = ConfigDict(extra="forbid")
     name: str
@@ -65,6 +71,7 @@ class _SweepFile(BaseModel):
     seeds: int | list[int] = 1
     methods: list[str | _Method] = Field(min_length=1)
     crlb: bool = True
+    profiles: dict[str, _Profile] = Field(default_factory=dict)
 
     @field_validator("seeds")
     @classmethod
@@ -129,7 +136,7 @@ class Task:
 
 @dataclasses.dataclass(frozen=True)
 class Sweep:
-    """A validated sweep: its name, renderer, tasks and a hash of them."""
+    """A validated sweep: its name, renderer, tasks and a hash of them (``profile``: the one applied, if any)."""
 
     name: str
     source: str
@@ -139,6 +146,7 @@ class Sweep:
     methods: list[Method]
     tasks: list[Task]
     crlb: bool
+    profile: str | None = None
 
     @property
     def sweep_hash(self) -> str:
@@ -159,7 +167,9 @@ def _where(path: str, loc: tuple[Any, ...]) -> str:
     return f"{path}: " + (".".join(str(x) for x in loc) or "<top>")
 
 
-def load_sweep(source: str | Path | Mapping[str, Any], *, check_methods: bool = True) -> Sweep:
+def load_sweep(
+    source: str | Path | Mapping[str, Any], *, check_methods: bool = True, profile: str | None = None
+) -> Sweep:
     """Read, validate and expand a sweep file.
 
     Parameters
@@ -170,6 +180,10 @@ def load_sweep(source: str | Path | Mapping[str, Any], *, check_methods: bool = 
     check_methods : bool, optional
         Resolve every method now (unknown built-ins and ``module:function``
         that cannot be imported are errors before anything runs).
+    profile : str, optional
+        A profile of the file's ``profiles``: its ``set`` is applied after the
+        file's, its ``axes`` replace the values of those axes (a smaller run of
+        the same experiment, e.g. ``quick``). None: the file as written.
 
     Returns
     -------
@@ -196,12 +210,13 @@ def load_sweep(source: str | Path | Mapping[str, Any], *, check_methods: bool = 
         err = exc.errors()[0]
         raise UserError(f"{_where(path, err['loc'])}: {err['msg'].removeprefix('Value error, ')}") from None
 
+    sets, axis_values = _profiled(path, spec, profile)
     renderer = RENDERERS[spec.renderer]()
     base = renderer.load_base(spec.scene, base_dir=base_dir, where=f"{path}: scene")
-    for key, value in spec.set.items():
-        set_dotted(base, key, value, where=f"{path}: set.{key}")
+    for (where, key), value in sets.items():
+        set_dotted(base, key, value, where=f"{path}: {where}.{key}")
 
-    axes = {name: _axis_values(path, name, values) for name, values in spec.axes.items()}
+    axes = {name: _axis_values(path, name, values) for name, values in axis_values.items()}
     for name, values in axes.items():
         if name not in AXES and "." not in name:
             raise UserError(
@@ -233,7 +248,27 @@ def load_sweep(source: str | Path | Mapping[str, Any], *, check_methods: bool = 
             for m in methods:
                 tid = _hash([spec.renderer, scene, noise, range_noise, seed, m.label, m.method, m.options])
                 tasks.append(Task(len(tasks), tid, config, scene, key, noise, range_noise, seed, m))
-    return Sweep(spec.name, path, renderer, axes, seeds, methods, tasks, spec.crlb)
+    return Sweep(spec.name, path, renderer, axes, seeds, methods, tasks, spec.crlb, profile)
+
+
+def _profiled(path: str, spec: _SweepFile, profile: str | None) -> tuple[dict[tuple[str, str], Any], dict[str, Any]]:
+    """The ``set`` items (keyed by ``(where, key)``, in the order applied) and the axes, with ``profile`` applied.
+
+    Every profile is checked, chosen or not: it may only change axes the file has.
+    """
+    for name, prof in spec.profiles.items():
+        for axis in prof.axes:
+            if axis not in spec.axes:
+                raise UserError(f"{path}: profiles.{name}.axes.{axis}: not an axis of the sweep "
+                                f"(a profile changes the values of the file's axes: {', '.join(spec.axes) or 'none'})")
+    sets = {("set", k): v for k, v in spec.set.items()}
+    if profile is None:
+        return sets, dict(spec.axes)
+    if profile not in spec.profiles:
+        raise UserError(f"{path}: profiles: no profile {profile!r} (the file has {', '.join(spec.profiles) or 'none'})")
+    chosen = spec.profiles[profile]
+    sets.update({(f"profiles.{profile}.set", k): v for k, v in chosen.set.items()})
+    return sets, {**spec.axes, **chosen.axes}
 
 
 def _axis_values(path: str, name: str, values: list[Any] | dict[str, Any]) -> list[tuple[Any, Any]]:

@@ -16,7 +16,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from .metrics import INFO_COLUMNS, METRICS, score
+import numpy as np
+
+from .metrics import ESTIMATE_COLUMNS, INFO_COLUMNS, METRICS, score
 
 
 def run_method(capture: Any, method: str, options: Mapping[str, Any]) -> Any:
@@ -79,6 +81,8 @@ def run_task(task: Mapping[str, Any], *, renderer: Any, cache_dir: str | None) -
         t0 = time.perf_counter()
         est = run_method(capture, task["method_spec"], task["options"])
         row["runtime_s"] = time.perf_counter() - t0
+        values = [*np.ravel(est.lamp_position), est.sigma, *np.broadcast_to(est.ks, (3,))]
+        row.update(zip(ESTIMATE_COLUMNS, map(float, values)))
         stage = "score"
         row.update(score(clean, est))
         stage = "crlb"

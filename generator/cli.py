@@ -14,23 +14,38 @@ def default_cache_dir() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "nearlight" / "renders"
 
 
-def add_cache_options(parser: argparse.ArgumentParser) -> None:
-    """``--cache DIR`` and ``--no-cache``, spelled and defaulted the same on every verb that renders."""
+def add_cache_options(parser: argparse.ArgumentParser, *, default: str | None = None) -> None:
+    """``--cache DIR`` and ``--no-cache``, spelled the same on every verb that renders.
+
+    One rule (docs/cli.md, "The render cache"): renders are kept by render key
+    in one folder; ``--cache DIR`` chooses it, ``--no-cache`` renders afresh.
+    The default is the user cache for ``render`` and the results folder's
+    ``renders/`` for ``sweep`` and ``reproduce`` (``default`` names it in the help).
+    """
+    where = default or f"$NEARLIGHT_CACHE or {default_cache_dir()}"
     group = parser.add_mutually_exclusive_group()
-    group.add_argument("--cache", metavar="DIR", default=None,
-                       help=f"render cache folder (default: $NEARLIGHT_CACHE or {default_cache_dir()})")  # fmt: skip
-    group.add_argument("--no-cache", action="store_true", help="do not read or write the render cache")
+    group.add_argument("--cache", metavar="DIR", default=None, help=f"render cache folder (default: {where})")
+    group.add_argument("--no-cache", action="store_true", help="do not read or write a render cache")
 
 
-def cache_dir(args: argparse.Namespace) -> Path | None:
-    """The render cache folder the options of :func:`add_cache_options` ask for (checked), or None."""
+def cache_dir(args: argparse.Namespace, *, default: Path | None = None) -> Path | None:
+    """The render cache folder the options of :func:`add_cache_options` ask for (checked), or None.
+
+    ``default`` replaces the user cache (:func:`default_cache_dir`) when ``--cache`` is not given.
+    """
     from ..files.outputs import check_folder
 
     if args.no_cache:
         return None
-    folder = Path(args.cache) if args.cache else default_cache_dir()
+    folder = Path(args.cache) if args.cache else (default or default_cache_dir())
     check_folder(folder, what="render cache folder (--cache)")
     return folder
+
+
+def results_cache(args: argparse.Namespace) -> Path | None | bool:
+    """The ``cache_dir`` of :func:`nearlight.evaluation.engine.run_sweep` for a verb with a results
+    folder: True (its ``renders/``) unless ``--cache DIR`` (checked) or ``--no-cache`` (None)."""
+    return cache_dir(args) if args.cache or args.no_cache else True
 
 
 def add_quiet_option(parser: argparse.ArgumentParser) -> None:

@@ -7,9 +7,10 @@ with ``np.random.SeedSequence(s).spawn(2)`` into two independent streams:
 child 0 draws the camera noise, child 1 the range noise. Both
 :func:`add_camera_noise` and :func:`add_range_noise` take that same ``s`` and
 pick their own child, so every verb follows one rule: ``nearlight render``
-passes the scene's ``capture.seed``, a sweep task its ``seed``, ``nearlight
-reproduce`` seed 0. ``nearlight render SCENE --set capture.seed=3`` and a sweep
-task with seed 3 on the same scene therefore see the same noisy images.
+passes the scene's ``capture.seed``, a sweep task its ``seed`` (``nearlight
+reproduce`` runs sweeps: seed 0 in ``sweeps/paper/``). ``nearlight render SCENE
+--set capture.seed=3`` and a sweep task with seed 3 on the same scene
+therefore see the same noisy images.
 
 Camera noise
 ------------

@@ -69,9 +69,10 @@ def test_one_spelling_of_quiet_cache_and_set():
     verbs = parser._subparsers._group_actions[0].choices  # noqa: SLF001 - argparse keeps its verbs here
     flags = {verb: {s for a in p._actions for s in a.option_strings} for verb, p in verbs.items()}
     assert {"--quiet", "--cache", "--no-cache", "--set"} <= flags["render"]
-    assert "--quiet" in flags["sweep"]
+    for verb in ("sweep", "reproduce"):
+        assert {"--quiet", "--cache", "--no-cache"} <= flags[verb]
     assert "--set" in flags["estimate"] and "--option" not in flags["estimate"]
-    assert not any("--no-progress" in f for v, f in flags.items() if v != "reproduce")  # reproduce: its own agent
+    assert not any("--no-progress" in f for f in flags.values())
 
 
 def test_default_cache_is_one_place(monkeypatch, tmp_path):
@@ -80,6 +81,29 @@ def test_default_cache_is_one_place(monkeypatch, tmp_path):
     monkeypatch.delenv("NEARLIGHT_CACHE")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     assert default_cache_dir() == tmp_path / "xdg" / "nearlight" / "renders"
+
+
+def test_sweep_cache_rule(tmp_path, capsys):
+    """A sweep keeps renders in DIR/renders by default, in --cache DIR when given, nowhere with
+    --no-cache; the rows are the same three ways (renders are deterministic on one machine)."""
+    import pandas as pd
+
+    sweep = yaml.safe_load((ROOT / "sweeps" / "smoke.yaml").read_text())
+    sweep.update(seeds=1, methods=["paper-init"], axes={"lamp_distance": [0.3]})
+    sweep["scene"]["camera"]["resolution"] = [32, 24]
+    path = tmp_path / "tiny.yaml"
+    path.write_text(yaml.safe_dump(sweep))
+    runs = {"default": [], "cache": ["--cache", str(tmp_path / "c")], "none": ["--no-cache"]}
+    rows = {}
+    for name, flags in runs.items():
+        out = tmp_path / name
+        _run(capsys, ["sweep", str(path), "--out", str(out), "--quiet", *flags])
+        rows[name] = pd.read_parquet(out / "results.parquet").drop(columns=["runtime_s"])
+    assert len(list((tmp_path / "default" / "renders").glob("*.npz"))) == 1
+    assert len(list((tmp_path / "c").glob("*.npz"))) == 1 and not (tmp_path / "cache" / "renders").exists()
+    assert not (tmp_path / "none" / "renders").exists()
+    pd.testing.assert_frame_equal(rows["default"], rows["cache"])
+    pd.testing.assert_frame_equal(rows["default"], rows["none"])
 
 
 def test_cache_and_no_cache_exclude_each_other(capsys):

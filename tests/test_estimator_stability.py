@@ -23,7 +23,7 @@ from nearlight.generator.analytic import analytic_capture
 
 TS = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1}
 
-#: The camera of the paper's real-object experiments (evaluation.reproduce.REAL_CAMERA):
+#: The camera of the paper's real-object experiments (sweeps/paper/bookend.yaml, curved.yaml):
 #: 12-bit, 20 000 e⁻ full well, 5 e⁻ read noise, brightest pixel at 90 % of the well.
 CAMERA = {"full_well": 20000.0, "read_noise": 5.0, "bits": 12, "saturation": "auto"}
 

@@ -248,3 +248,23 @@ def test_camera_noise_variance_matches_the_generator(rng):
     predicted = camera_noise_variance(stack, noise=noise)
     for k in range(2):
         assert np.var(noisy[k]) == pytest.approx(predicted[k].mean(), rel=0.05)
+
+
+def test_a_row_holds_its_estimate_and_its_captures_come_back_from_the_sweep(first_run, sweep_file):
+    # The oracle's estimate is the truth (offset 0): a row's est_* columns give it back, and the
+    # noisy capture task_captures rebuilds is the one the task saw (same seed rule, same images).
+    from nearlight.evaluation.engine import row_estimate, task_captures
+
+    out, _ = first_run
+    sweep = load_sweep(sweep_file)
+    df, _ = read_results(out)
+    row = df[(df["method"] == "nl_fake_estimators:noisy") & (df["noise"] == "low")].iloc[0]
+    task = sweep.tasks[int(row["task_index"])]
+    clean, seen = task_captures(sweep, task, out)
+    assert seen.stack is not None and not np.array_equal(seen.stack, clean.stack)
+    expected = np.asarray(clean.truth["lamp_position"]) + [float(np.mean(seen.stack)) * 0.01, 0.0, 0.0]
+    est = row_estimate(row)
+    np.testing.assert_array_equal(est.lamp_position, expected)  # exact: float64 through Parquet
+    assert est.sigma == clean.truth["bsdf"]["sigma"]
+    failed = df[df["status"] != "ok"].iloc[0]
+    assert np.isnan(row_estimate(failed).lamp_position).all()

@@ -48,6 +48,9 @@ def _write(tmp_path, doc, name="s.yaml"):
         ({"scene": {"widht": 3}}, "scene: widht: not an analytic_capture argument"),
         ({"axes": {"polarization": ["fresnel"]}}, "supports only 'ideal' polarization"),
         ({"set": {"width.x": 3}}, "set.width.x: width: is not a section"),
+        ({"profiles": {"quick": {"axes": {"roughness": [0.1]}}}},
+         "profiles.quick.axes.roughness: not an axis of the sweep"),
+        ({"profiles": {"quick": {"resolution": 3}}}, "profiles.quick.resolution: Extra inputs are not permitted"),
     ],
 )
 def test_bad_sweep_files_give_one_line_errors(tmp_path, change, expect):
@@ -129,3 +132,30 @@ def test_axes_change_the_scene(tmp_path):
     assert np.allclose(scene["bsdf"]["rho_s"], 4 * math.pi * 0.02 * np.array([0.8, 0.6, 0.5]))
     assert scene["analyzer_angles_deg"] == [0.0, 30.0, 60.0, 90.0, 120.0, 150.0]
     assert scene["bsdf"]["kd"] == [0.1, 0.2, 0.3]
+
+
+def test_a_profile_overrides_set_keys_and_axis_values(tmp_path):
+    # A profile is the same experiment, smaller: its set after the file's, its axes replacing those values.
+    doc = {**BASE, "set": {"width": 64, "height": 48}, "axes": {"lamp_distance": [0.3, 0.5, 0.7], "roughness": [0.1]},
+           "profiles": {"quick": {"set": {"width": 16}, "axes": {"lamp_distance": [0.3]}}}}
+    path = _write(tmp_path, doc)
+    full, quick = load_sweep(path), load_sweep(path, profile="quick")
+    assert (full.profile, quick.profile) == (None, "quick")
+    assert [t.config["lamp_distance"] for t in full.tasks] == [0.3, 0.5, 0.7]
+    assert [t.config["lamp_distance"] for t in quick.tasks] == [0.3]
+    assert (full.tasks[0].scene["width"], quick.tasks[0].scene["width"]) == (64, 16)
+    assert quick.tasks[0].scene["height"] == 48 and quick.sweep_hash != full.sweep_hash
+    with pytest.raises(UserError, match=r"s\.yaml: profiles: no profile 'tiny' \(the file has quick\)"):
+        load_sweep(path, profile="tiny")
+
+
+def test_the_paper_sweeps_load_in_both_profiles():
+    # sweeps/paper/*.yaml (what `nearlight reproduce` runs): valid as written (full) and with --quick.
+    from nearlight.evaluation.reproduce import EXPERIMENTS, load_sweeps
+
+    for quick in (False, True):
+        sweeps = load_sweeps(quick=quick)
+        assert list(sweeps) == list(EXPERIMENTS)
+        for s in sweeps.values():
+            assert s.tasks[0].scene["camera"]["resolution"] == ([160, 120] if quick else [640, 480])
+            assert {t.seed for t in s.tasks} == {0} and not s.crlb

@@ -681,19 +681,19 @@ def _output_place_cases() -> None:
     @case("out-reproduce-out-is-a-file")
     def build(folder, assets):
         f = _write(folder / "repro", "x")
-        return ["reproduce", "--out", str(f), "--quick", "--no-progress"], str(f)
+        return ["reproduce", "--out", str(f), "--quick", "--quiet"], str(f)
 
     @case("out-reproduce-user-markdown")
     def build(folder, assets):
         d = _user_folder(folder, "repro")
         _write(d / "paper_reproduction.md", "# my draft\n")
-        return ["reproduce", "--out", str(d), "--quick", "--no-progress"], "paper_reproduction.md"
+        return ["reproduce", "--out", str(d), "--quick", "--quiet"], "paper_reproduction.md"
 
     @case("out-reproduce-figures-is-a-file")
     def build(folder, assets):
         d = folder / "repro"
         _write(d / "figures", "x")
-        return ["reproduce", "--out", str(d), "--quick", "--no-progress"], "figures"
+        return ["reproduce", "--out", str(d), "--quick", "--quiet"], "figures"
 
     @case("out-sweep-out-is-a-file")
     def build(folder, assets):

@@ -1,4 +1,5 @@
-"""``nearlight reproduce --quick``: the README's main job, end to end on real renders."""
+"""``nearlight reproduce --quick``: the README's main job, end to end on real renders,
+as sweep files run by the sweep engine."""
 
 from __future__ import annotations
 
@@ -7,14 +8,19 @@ import json
 import pytest
 
 from nearlight.cli import main
-from nearlight.evaluation.reproduce import ALL_METHODS, EXPERIMENTS, NEAR_METHODS, finite_numbers
+from nearlight.evaluation.reproduce import EXPERIMENTS, finite_numbers, load_sweeps
+from nearlight.evaluation.store import read_results
 
 
 @pytest.fixture(scope="module")
 def quick_report(tmp_path_factory):
     out = tmp_path_factory.mktemp("reproduce")
-    assert main(["reproduce", "--quick", "--no-progress", "--out", str(out)]) == 0
+    assert main(["reproduce", "--quick", "--quiet", "--out", str(out)]) == 0
     return out, json.loads((out / "paper_reproduction.json").read_text())
+
+
+def _labels(key):
+    return [m.label for m in load_sweeps(quick=True)[key].methods]
 
 
 def test_report_json_and_figures_exist(quick_report, capsys):
@@ -33,15 +39,62 @@ def test_every_method_and_scene_has_finite_numbers(quick_report):
     assert finite_numbers(doc)
     for name in ("board", "bookend", "curved"):
         methods = doc["experiments"][name]["methods"]
-        assert list(methods) == list(NEAR_METHODS)
+        assert list(methods) == _labels(name)
         for m, row in methods.items():
+            assert row["status"] == "ok", (name, m, row.get("error"))
             assert len(row["lamp_position"]) == 3 and row["lamp_position_error_m"] is not None, (name, m)
     rows = doc["experiments"]["near_vs_distant"]["rows"]
-    assert {r["method"] for r in rows} == set(ALL_METHODS)
+    assert {r["method"] for r in rows} == set(_labels("near_vs_distant"))
+
+
+def test_the_report_is_a_view_of_the_engines_rows(quick_report):
+    # Every experiment's numbers are its sweep's rows: same estimate, same errors, and each row
+    # names the code version (with its commit) that made it.
+    out, doc = quick_report
+    for name, ex in doc["experiments"].items():
+        df, complete = read_results(out / ex["results"])
+        assert complete and set(df["status"]) == {"ok"}, name
+        assert (out / ex["results"] / "environment.json").is_file()
+        assert ex["sweep"] == f"sweeps/paper/{EXPERIMENTS[name][0]}"
+        shown = ex["methods"].values() if "methods" in ex else ex["rows"]
+        by_id = df.set_index("task_id")
+        assert sorted(r["task_id"] for r in shown) == sorted(df["task_id"])
+        for r in shown:
+            row = by_id.loc[r["task_id"]]
+            assert r["lamp_position"] == [row["est_lamp_x_m"], row["est_lamp_y_m"], row["est_lamp_z_m"]]
+            assert r["lamp_position_error_pct"] == row["lamp_position_error_pct"]
+            assert r["code_version"] == row["code_version"] and "+g" in r["code_version"]
+
+
+def test_near_vs_distant_distance_is_from_the_board_centre(quick_report):
+    # The axis is the engine's lamp_distance: metres from the board centre (the ray's origin);
+    # the distance from the highlight point, which the errors are relative to, is its own column.
+    import numpy as np
+
+    out, doc = quick_report
+    ex = doc["experiments"]["near_vs_distant"]
+    assert sorted({r["lamp_distance_m"] for r in ex["rows"]}) == doc["profile"]["distances_m"]
+    centre, direction = np.asarray(ex["ray"]["from"]), np.asarray(ex["ray"]["direction"])
+    df, _ = read_results(out / ex["results"])
+    sweep = load_sweeps(quick=True)["near_vs_distant"]
+    for r in ex["rows"]:
+        lamp = np.asarray(sweep.tasks[int(df.set_index("task_id").loc[r["task_id"], "task_index"])].scene["lamp"]["position"])
+        assert np.allclose(lamp, centre + r["lamp_distance_m"] * direction, atol=1e-12)
+        assert r["lamp_distance_true_m"] != pytest.approx(r["lamp_distance_m"], abs=1e-4)
+    md = (out / "paper_reproduction.md").read_text()
+    assert "from the board centre (m)" in md and "from the highlight (m)" in md
+
+
+def test_a_second_run_resumes_and_rebuilds_the_same_report(quick_report, capsys):
+    out, doc = quick_report
+    assert main(["reproduce", "--quick", "--quiet", "--out", str(out)]) == 0
+    again = json.loads((out / "paper_reproduction.json").read_text())
+    assert again["experiments"] == doc["experiments"]  # no task ran again: identical rows, identical figures
+    assert again["elapsed_s"] < doc["elapsed_s"]
 
 
 def test_full_method_is_within_one_percent_on_the_paper_board(quick_report):
-    # Issue 5: on the §4.1 board `full` is within 1 % of the lamp distance. The quick
+    # On the §4.1 board `full` is within 1 % of the lamp distance. The quick
     # profile (160x120, 4 angles, noise-free) fits a Torrance–Sparrow lobe to a Ward
     # surface: the residual model mismatch, not noise, sets the error (0.3 % measured).
     _, doc = quick_report
@@ -49,21 +102,35 @@ def test_full_method_is_within_one_percent_on_the_paper_board(quick_report):
 
 
 def test_near_field_beats_distant_when_the_lamp_is_near(quick_report):
-    # The paper's motivation: with the lamp 0.15 m from the board the distant-light
+    # The paper's motivation: with the lamp 0.15 m from the board centre the distant-light
     # baseline is off by more than the lamp's distance, `full` by well under 1 %.
     _, doc = quick_report
     rows = doc["experiments"]["near_vs_distant"]["rows"]
-    nearest = min(r["distance_m"] for r in rows)
-    by = {r["method"]: r for r in rows if r["distance_m"] == nearest}
+    nearest = min(r["lamp_distance_m"] for r in rows)
+    by = {r["method"]: r for r in rows if r["lamp_distance_m"] == nearest}
     assert by["distant"]["lamp_position_error_pct"] > 50.0
     assert by["full"]["lamp_position_error_pct"] < 1.0
 
 
 def test_unwritable_out_is_a_one_line_error(tmp_path, capsys):
     (tmp_path / "file").write_text("")
-    assert main(["reproduce", "--quick", "--no-progress", "--out", str(tmp_path / "file" / "x")]) == 2
+    assert main(["reproduce", "--quick", "--quiet", "--out", str(tmp_path / "file" / "x")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("nearlight: error:") and "\n" not in err
+
+
+def test_a_results_folder_of_another_sweep_is_refused_before_work(quick_report, tmp_path, capsys):
+    import shutil
+
+    out, doc = quick_report
+    mine = tmp_path / "out"
+    taken = mine / doc["experiments"]["curved"]["results"]
+    shutil.copytree(out / doc["experiments"]["board"]["results"], taken, ignore=shutil.ignore_patterns("renders"))
+    assert main(["reproduce", "--quick", "--quiet", "--out", str(mine)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "holds results of another sweep ('paper-board'" in err and "\n" not in err
+    assert sorted(p.name for p in mine.iterdir()) == ["sweeps"]  # nothing else written
+    assert not (mine / doc["experiments"]["board"]["results"]).exists()
 
 
 def test_check_against_another_run(quick_report):
@@ -89,6 +156,6 @@ def test_against_a_reference_of_another_profile_is_refused_before_work(quick_rep
     ref.mkdir()
     (ref / "paper_reproduction.json").write_text(json.dumps({**doc, "profile": {**doc["profile"], "name": "full"}}))
     out = tmp_path / "out"
-    assert main(["reproduce", "--quick", "--no-progress", "--out", str(out), "--against", str(ref)]) == 2
+    assert main(["reproduce", "--quick", "--quiet", "--out", str(out), "--against", str(ref)]) == 2
     err = capsys.readouterr().err.strip()
     assert "profile 'full', this run is 'quick'" in err and "\n" not in err and not out.exists()
