@@ -225,6 +225,25 @@ class _Dask:
             self.client.close()
 
 
+def sweep_inputs(sweep: Sweep) -> list[Path]:
+    """The files a sweep read: its sweep file and the scene file it names (when they are files)."""
+    source = Path(sweep.source)
+    if not source.is_file():
+        return []
+    from ..files.yamlfile import load_yaml_file
+
+    scene = load_yaml_file(source, what="sweep file").get("scene")
+    scene_file = source.parent / scene if isinstance(scene, str) else None
+    return [source, *([scene_file] if scene_file is not None and scene_file.is_file() else [])]
+
+
+def _record_provenance(sweep: Sweep, out: str | Path, command: str | None) -> None:
+    from .provenance import record
+
+    record(out, command=command or f"nearlight sweep {sweep.source} --out {out}",
+           entry_modules=[__name__], inputs=sweep_inputs(sweep))
+
+
 def _executor(workers: int, scheduler: Any) -> Any:
     if scheduler is not None:
         return _Dask(scheduler)
@@ -243,6 +262,7 @@ def run_sweep(
     scheduler: Any = None,
     progress: bool = True,
     cache_dir: str | Path | None | bool = True,
+    command: str | None = None,
 ) -> RunSummary:
     """Run (or resume) ``sweep`` into ``out``.
 
@@ -262,6 +282,10 @@ def run_sweep(
         results folder's ``renders/`` (rows and figures refer to it; cluster
         workers share the folder), a path another folder (on a cluster, one
         every worker sees), None no cache (each task renders its own capture).
+    command : str, optional
+        The command that regenerates ``out``, recorded in its
+        ``provenance.json`` by the run that completes the sweep (default
+        ``nearlight sweep SOURCE --out OUT``).
 
     Returns
     -------
@@ -323,6 +347,8 @@ def run_sweep(
     finally:
         executor.close()
     complete = store.consolidate() is not None
+    if complete and todo:  # a re-run that ran nothing leaves the record of the run that made the rows
+        _record_provenance(sweep, out, command)
     ran = len(todo)
     return RunSummary(
         tasks=len(sweep.tasks),

@@ -157,7 +157,9 @@ def record(
     """
     from .environment import code_version
 
-    path = Path(folder) / FILE
+    from ..files.outputs import check_file_out
+
+    path = check_file_out(Path(folder) / FILE, "provenance")  # never a file nearlight did not write
     doc: dict[str, Any] = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
     if part == "results":  # a new run supersedes every view made from the old one
         doc = {}

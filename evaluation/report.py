@@ -20,8 +20,10 @@ import numpy as np
 import pandas as pd
 
 from ..errors import UserError
-from .store import MANIFEST, read_manifest, read_results
+from .environment import code_version
 from .metrics import METRICS
+from .provenance import record
+from .store import MANIFEST, read_manifest, read_results
 from ..files.figures import save_png
 from ..files.outputs import check_files_in, make_folder
 
@@ -134,8 +136,14 @@ def _png_name(axis: str) -> str:
     return f"error_vs_{axis.replace('.', '_')}.png"
 
 
-def write_report(results_dir: str | os.PathLike, *, out: str | os.PathLike | None = None) -> Path:
+def write_report(
+    results_dir: str | os.PathLike, *, out: str | os.PathLike | None = None, command: str | None = None
+) -> Path:
     """Write the tables and plots of a sweep folder; returns the report folder.
+
+    The report's part of ``DIR/provenance.json`` records ``command`` (default
+    ``nearlight report DIR``) and the code the report was made with
+    (:mod:`nearlight.evaluation.provenance`).
 
     The report folder (default ``DIR/report``) and every file the report
     writes there (:func:`report_files`) are checked before anything is
@@ -172,7 +180,8 @@ def write_report(results_dir: str | os.PathLike, *, out: str | os.PathLike | Non
     md = [f"# Sweep report: {info.get('name', results_dir.name)}", ""]
     if not complete:
         md += [f"**Incomplete sweep: {len(df)} of {info.get('tasks', '?')} tasks have rows.**", ""]
-    md += [f"{len(df)} tasks; code version(s): {', '.join(sorted(df['code_version'].astype(str).unique()))}.",
+    md += [f"{len(df)} tasks; code version(s): {', '.join(sorted(df['code_version'].astype(str).unique()))}; "
+           f"report written by {code_version()}.",
            "Cells: median (90th percentile) over successful tasks. Units: "
            + "; ".join(f"{m} [{METRICS[m]}]" for m in HEADLINE) + ".", "",
            "## Overall", "", _md(counts.reset_index()), "", _md(_wide(overall, ["method"])), ""]
@@ -191,6 +200,8 @@ def write_report(results_dir: str | os.PathLike, *, out: str | os.PathLike | Non
     if len(failed):
         md += ["## Failed tasks", "", _md(failed[["task_index", "method", "error"]].head(50)), ""]
     _write_text(folder / "summary.md", "\n".join(md))
+    record(results_dir, command=command or f"nearlight report {results_dir}" + (f" --out {out}" if out else ""),
+           entry_modules=[__name__], part="report")
     return folder
 
 

@@ -323,6 +323,7 @@ EXPERIMENTS: dict[str, tuple[str, Callable[[Experiment], dict[str, Any]]]] = {
 REPORT_FILES: dict[str, str] = {
     "paper_reproduction.json": "reproduction-json",
     "paper_reproduction.md": "reproduction-md",
+    "provenance.json": "provenance",
     **{f"figures/{name}": "png" for name in ("fig3_board.png", "bookend_separation.png", "bookend_synthesis.png",
                                              "curved_separation.png", "curved_synthesis.png", "near_vs_distant.png")},
 }  # fmt: skip
@@ -380,8 +381,9 @@ def reproduce(
         ``out / "paper_reproduction.md"``.
     """
     from ..files.outputs import check_files_in, check_folder, make_folder
-    from .engine import check_resumable, run_sweep
+    from .engine import check_resumable, run_sweep, sweep_inputs
     from .environment import code_version, collect
+    from .provenance import record
     from .reproduce_report import markdown
     from .store import read_results
 
@@ -398,8 +400,9 @@ def reproduce(
     make_folder(out, what="report folder")
     start = time.perf_counter()
     results: dict[str, Any] = {}
+    command = "nearlight reproduce" + (" --quick" if quick else "") + f" --out {out}"
     for key, s in sweeps.items():
-        summary = run_sweep(s, folders[key], workers=workers, progress=progress, cache_dir=cache_dir)
+        summary = run_sweep(s, folders[key], workers=workers, progress=progress, cache_dir=cache_dir, command=command)
         if not summary.complete:
             raise UserError(f"{folders[key]}: sweep {s.name} is incomplete; run `nearlight reproduce` again")
         rows, _ = read_results(folders[key])
@@ -416,6 +419,8 @@ def reproduce(
     (out / "paper_reproduction.json").write_text(json.dumps(jsonable(doc), indent=2) + "\n")
     md = out / "paper_reproduction.md"
     md.write_text(markdown(doc))
+    record(out, command=command, entry_modules=[__name__, "nearlight.evaluation.reproduce_report"],
+           inputs=[f for s in sweeps.values() for f in sweep_inputs(s)])
     return md
 
 
