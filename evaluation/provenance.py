@@ -174,7 +174,10 @@ def record(
 
 
 def stale(folder: str | os.PathLike) -> list[str]:
-    """What changed since ``folder`` was made: one line per changed, missing or unhashed part.
+    """What changed since ``folder`` was made: one line per changed or missing part.
+
+    Every ``provenance.json`` at or below ``folder`` is checked (a
+    reproduction's report and each of its experiments' results folders).
 
     Returns
     -------
@@ -183,22 +186,26 @@ def stale(folder: str | os.PathLike) -> list[str]:
         else lines such as ``"results: estimator/paper.py changed (made by
         0.1.0+g964de14; regenerate: nearlight sweep ...)"``.
     """
-    path = Path(folder) / FILE
-    if not path.is_file():
-        return [f"{path}: missing (no record of what made this folder)"]
-    doc = json.loads(path.read_text(encoding="utf-8"))
+    folder = Path(folder)
+    records = sorted(folder.rglob(FILE))
+    if not records:
+        return [f"{folder / FILE}: missing (no record of what made this folder)"]
     lines: list[str] = []
-    parts: Mapping[str, Any] = doc.get("parts", {})
-    for name, part in sorted(parts.items()):
-        changed = []
-        for kind in ("code", "inputs"):
-            for rel, digest in part.get(kind, {}).items():
-                file = PACKAGE_ROOT / rel
-                if not file.is_file():
-                    changed.append(f"{rel} missing")
-                elif _sha256(file) != digest:
-                    changed.append(f"{rel} changed")
-        if changed:
-            lines.append(f"{name}: {', '.join(changed)} (made by {part.get('code_version')}; "
-                         f"regenerate: {part.get('command')})")
+    for path in records:
+        where = path.parent.relative_to(folder).as_posix()
+        prefix = "" if where == "." else f"{where}: "
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        parts: Mapping[str, Any] = doc.get("parts", {})
+        for name, part in sorted(parts.items()):
+            changed = []
+            for kind in ("code", "inputs"):
+                for rel, digest in part.get(kind, {}).items():
+                    file = PACKAGE_ROOT / rel
+                    if not file.is_file():
+                        changed.append(f"{rel} missing")
+                    elif _sha256(file) != digest:
+                        changed.append(f"{rel} changed")
+            if changed:
+                lines.append(f"{prefix}{name}: {', '.join(changed)} (made by {part.get('code_version')}; "
+                             f"regenerate: {part.get('command')})")
     return lines

@@ -419,8 +419,10 @@ def reproduce(
     (out / "paper_reproduction.json").write_text(json.dumps(jsonable(doc), indent=2) + "\n")
     md = out / "paper_reproduction.md"
     md.write_text(markdown(doc))
+    # the report part; each experiment's rows carry the record of the run that made them
+    # (OUT/sweeps/<profile>/<name>/provenance.json), which a resumed run leaves as it was
     record(out, command=command, entry_modules=[__name__, "nearlight.evaluation.reproduce_report"],
-           inputs=[f for s in sweeps.values() for f in sweep_inputs(s)])
+           inputs=[f for s in sweeps.values() for f in sweep_inputs(s)], part="report")
     return md
 
 

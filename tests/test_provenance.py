@@ -67,3 +67,15 @@ def test_a_new_run_drops_the_old_report_part(fake_package, tmp_path):
 
 def test_missing_record_is_stale(tmp_path):
     assert "missing" in provenance.stale(tmp_path)[0]
+
+
+def test_records_below_the_folder_are_checked_too(fake_package, tmp_path):
+    """A reproduction: its report records itself, each experiment's results folder the run that made its rows."""
+    out = tmp_path / "out"
+    (out / "sweeps" / "board").mkdir(parents=True)
+    provenance.record(out, command="reproduce", entry_modules=["nearlight.sub.c"], part="report")
+    provenance.record(out / "sweeps" / "board", command="reproduce", entry_modules=["nearlight.sub.a"])
+    assert provenance.stale(out) == []
+    (fake_package / "sub" / "a.py").write_text("def f():\n    return 3\n")
+    [line] = provenance.stale(out)
+    assert line.startswith("sweeps/board: results: sub/a.py changed")
