@@ -341,3 +341,58 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = 0.0
         camera_position=cam,
         scale=float(np.linalg.norm(cam - P[i, j])),
     )
+
+
+def subpixel_peak(lum: np.ndarray, usable: np.ndarray, peak: tuple[int, int]) -> np.ndarray:
+    """Sub-pixel peak ``(row, column)`` of ``lum`` around the pixel ``peak``.
+
+    A log-Gaussian fit in each direction: a parabola through ``ln lum`` at the
+    peak and its two neighbours (exact for a Gaussian lobe sampled on the
+    grid), offset clipped to ±0.5 px. A direction whose neighbours are not
+    ``usable`` or not positive keeps the pixel centre.
+
+    Returns
+    -------
+    ndarray, shape (2,)
+        Row and column in pixel units, integers at pixel centres.
+    """
+    out = np.array(peak, dtype=float)
+    for axis, step in ((0, (1, 0)), (1, (0, 1))):
+        lo = (peak[0] - step[0], peak[1] - step[1])
+        hi = (peak[0] + step[0], peak[1] + step[1])
+        if not all(0 <= lo[k] and hi[k] < lum.shape[k] for k in (0, 1)):
+            continue
+        if not (usable[lo] and usable[hi] and lum[lo] > 0 and lum[hi] > 0 and lum[peak] > 0):
+            continue
+        a, b, c = np.log(lum[lo]), np.log(lum[peak]), np.log(lum[hi])
+        curvature = a - 2.0 * b + c
+        if curvature < 0:
+            out[axis] += float(np.clip(0.5 * (a - c) / curvature, -0.5, 0.5))
+    return out
+
+
+def surface_at(obs: Observation, rc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Surface point and unit normal at continuous pixel coordinates ``rc = (row, column)``.
+
+    Bilinear interpolation of ``P`` and ``N`` between the four surrounding
+    pixel centres (``N`` renormalised); where one of them is off the surface,
+    the nearest pixel's. Exact at pixel centres.
+
+    Returns
+    -------
+    P, N : ndarray, shape (3,)
+    """
+    r, c = float(rc[0]), float(rc[1])
+    H, W = obs.surface.shape
+    i0, j0 = int(np.floor(r)), int(np.floor(c))
+    fr, fc = r - i0, c - j0
+    if fr == 0.0 and fc == 0.0 and 0 <= i0 < H and 0 <= j0 < W:
+        return obs.P[i0, j0].copy(), obs.N[i0, j0].copy()
+    corners = [(i0, j0), (i0, j0 + 1), (i0 + 1, j0), (i0 + 1, j0 + 1)]
+    if not all(0 <= i < H and 0 <= j < W and obs.surface[i, j] for i, j in corners):
+        i, j = int(np.clip(round(r), 0, H - 1)), int(np.clip(round(c), 0, W - 1))
+        return obs.P[i, j].copy(), obs.N[i, j].copy()
+    w = np.array([(1 - fr) * (1 - fc), (1 - fr) * fc, fr * (1 - fc), fr * fc])
+    P = sum(wk * obs.P[i, j] for wk, (i, j) in zip(w, corners))
+    N = sum(wk * obs.N[i, j] for wk, (i, j) in zip(w, corners))
+    return P, normalize(N)

@@ -54,18 +54,23 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import Annotated
 
 import numpy as np
-from scipy.optimize import minimize_scalar
+from pydantic import Field
+from scipy.optimize import minimize, minimize_scalar
 
 from ..capture import Capture
 from ..errors import UserError
 from .fitting import log_regression
-from .observation import Observation, observe
+from .observation import Observation, observe, subpixel_peak, surface_at
 from .options import Choice, Count, Fraction, Positive, forwards
 from .separation import SEPARATION_METHODS
 from .result import Estimate
-from ..physics.reflectance import mirror_direction, shading_geometry
+from ..physics.reflectance import mirror_direction, normalize, shading_geometry
+
+#: A finite real number (may be negative or zero).
+Real = Annotated[float, Field(allow_inf_nan=False)]
 
 #: Largest number of (t, pixel) pairs evaluated at once.
 _CHUNK = 2_000_000
@@ -77,12 +82,20 @@ class RaySearch:
     Parameters
     ----------
     obs : Observation
+    point : tuple of ndarray, optional
+        ``(P, N)``: the ray's surface point and unit normal; default the
+        peak pixel's (the paper's).
     """
 
-    def __init__(self, obs: Observation):
-        i, j = obs.peak
-        self.origin = obs.P[i, j]
-        self.direction = mirror_direction(obs.N[i, j], obs.V[i, j])
+    def __init__(self, obs: Observation, point: tuple[np.ndarray, np.ndarray] | None = None):
+        if point is None:
+            i, j = obs.peak
+            self.origin = obs.P[i, j]
+            self.direction = mirror_direction(obs.N[i, j], obs.V[i, j])
+        else:
+            self.origin = np.asarray(point[0], dtype=float)
+            self.direction = mirror_direction(np.asarray(point[1], dtype=float),
+                                              normalize(obs.camera_position - self.origin))
         m = obs.mask
         self.P, self.N = obs.P[m], obs.N[m]
         self.camera = obs.camera_position
@@ -178,6 +191,123 @@ def t_search_defaults(obs: Observation, t_max: float | None, dt: float | None) -
     return t_max, dt
 
 
+#: Ray origins of the first stage (option ``origin``). ``peak``: the brightest
+#: pixel (the printed paper). ``subpixel``: a log-Gaussian sub-pixel peak.
+#: ``mirror-oracle``: ORACLE, the exact mirror point of the capture's true
+#: lamp (reads ``capture.truth``; a study of the method, not an estimator).
+#: ``model``: DEPARTURE from the printed paper, the sub-pixel peak corrected
+#: by the offset the Torrance–Sparrow model predicts for the current t and σ,
+#: iterated with t (:func:`model_origin`).
+ORIGINS = ("peak", "subpixel", "mirror-oracle", "model")
+#: ``origin: model``: most fixed-point iterations, and the move (px) that ends them.
+MODEL_ORIGIN_ITERATIONS = 12
+MODEL_ORIGIN_TOLERANCE_PX = 0.01
+
+
+def _brightness(obs: Observation) -> np.ndarray:
+    """Mean specular over the channels, ``[H, W]``."""
+    return obs.specular.mean(axis=-1)
+
+
+def _alpha2_at(obs: Observation, rc: np.ndarray, lamp: np.ndarray) -> float:
+    P, N = surface_at(obs, rc)
+    return float(shading_geometry(P, N, obs.camera_position, lamp).alpha ** 2)
+
+
+def mirror_oracle_pixel(capture: Capture, obs: Observation) -> np.ndarray:
+    """ORACLE: the sub-pixel ``(row, column)`` of the exact mirror point of the capture's TRUE lamp.
+
+    Reads ``capture.truth["lamp_position"]`` (the only place in the
+    estimators that does): α of the true lamp is smallest at the mirror
+    point; the surface pixel of least α, refined over interpolated P, N
+    (:func:`~nearlight.estimator.observation.surface_at`) to 1e-4 px.
+
+    Raises
+    ------
+    UserError
+        The capture has no truth (a real capture): the oracle cannot run.
+    """
+    truth = capture.truth if isinstance(capture.truth, dict) else {}
+    if truth.get("lamp_position") is None:
+        raise UserError(f"{capture.name}: option origin=mirror-oracle: the capture has no truth.lamp_position "
+                        "(the oracle needs the true lamp; use origin=peak, subpixel or model)")
+    lamp = np.asarray(truth["lamp_position"], dtype=float)
+    s = obs.surface
+    alpha = shading_geometry(obs.P[s], obs.N[s], obs.camera_position, lamp).alpha
+    start = np.argwhere(s)[int(np.argmin(alpha))].astype(float)
+    res = minimize(lambda rc: _alpha2_at(obs, rc, lamp), start, method="Nelder-Mead",
+                   options={"xatol": 1e-4, "fatol": 0.0, "initial_simplex": start + [[0, 0], [0.5, 0], [0, 0.5]]})
+    return np.asarray(res.x, dtype=float)
+
+
+def model_peak_pixel(obs: Observation, lamp: np.ndarray, sigma: float) -> np.ndarray:
+    """Sub-pixel peak ``(row, column)`` the Torrance–Sparrow model predicts for a lamp and σ.
+
+    The model image ``exp(−α²/2σ²) / (cos θr r²)`` on the surface pixels (Ks
+    only scales it), its brightest pixel off the border, and the same
+    log-Gaussian refinement as the data's (:func:`subpixel_peak`), so that
+    the estimator's own bias cancels between the two.
+    """
+    s = obs.surface
+    g = shading_geometry(obs.P[s], obs.N[s], obs.camera_position, lamp)
+    img = np.zeros(s.shape)
+    img[s] = np.exp(-0.5 * (g.alpha / sigma) ** 2) / (obs.cos_r[s] * g.r**2)
+    img[[0, -1], :] = 0.0
+    img[:, [0, -1]] = 0.0
+    peak = np.unravel_index(int(np.argmax(img)), img.shape)
+    return subpixel_peak(img, s, (int(peak[0]), int(peak[1])))
+
+
+def origin_pixel(capture: Capture, obs: Observation, origin: str, origin_shift: float) -> np.ndarray | None:
+    """Continuous ``(row, column)`` of the ray's origin for ``origin`` (None: the peak pixel itself).
+
+    ``origin_shift`` s (``mirror-oracle`` only): the origin moves from the
+    mirror point m towards the brightest pixel p, ``m + s·(p − m)`` (s = 0
+    the mirror point, s = 1 the brightest pixel), for the t*(s) study.
+    """
+    if origin_shift != 0.0 and origin != "mirror-oracle":
+        raise UserError(f"option origin_shift: only with origin=mirror-oracle (got origin={origin})")
+    if origin == "peak":
+        return None
+    if origin == "mirror-oracle":
+        m = mirror_oracle_pixel(capture, obs)
+        return m + origin_shift * (np.asarray(obs.peak, dtype=float) - m)
+    return subpixel_peak(_brightness(obs), obs.surface, obs.peak)
+
+
+def model_origin(obs: Observation, search: Callable[[RaySearch], dict], start: np.ndarray,
+                 where: str) -> tuple[RaySearch, dict, list[list[float]]]:
+    """``origin: model`` (a DEPARTURE from the printed paper): the ray from a model-predicted mirror point.
+
+    The brightest pixel is not the mirror point: 1/r² and 1/cos θr move the
+    intensity maximum by δ ∝ σ² towards the lamp. From the sub-pixel peak
+    p_obs, iterate: search t on the ray from the current origin p, fit σ
+    (eq. 16–17), predict the model's own peak p_model for that lamp and σ
+    (:func:`model_peak_pixel`; its mirror point is p by construction), and
+    move the origin to ``p_obs − (p_model − p)``; stop when it moves by less
+    than :data:`MODEL_ORIGIN_TOLERANCE_PX` or after
+    :data:`MODEL_ORIGIN_ITERATIONS`.
+
+    Returns
+    -------
+    ray, found, path
+        The last ray, its search result, and the origins visited (px).
+    """
+    p, path = np.array(start, dtype=float), []
+    for _ in range(MODEL_ORIGIN_ITERATIONS):
+        path.append(p.tolist())
+        ray = RaySearch(obs, surface_at(obs, p))
+        found = search(ray)
+        X, Y = ray.xy(np.array([found["t"]]))
+        sigma = log_regression(X[0], Y[0], where=where)[1]
+        p_new = start - (model_peak_pixel(obs, ray.lamp(found["t"]), sigma) - p)
+        moved = float(np.linalg.norm(p_new - p))
+        p = p_new
+        if moved < MODEL_ORIGIN_TOLERANCE_PX:
+            break
+    return ray, found, path
+
+
 def stage_one(
     capture: Capture,
     *,
@@ -188,6 +318,8 @@ def stage_one(
     search: Choice(SEARCHES) = "fast",
     n_coarse: Count = 48,
     strict_t_max: bool = True,
+    origin: Choice(ORIGINS) = "peak",
+    origin_shift: Real = 0.0,
 ) -> tuple[Estimate, Observation]:
     """The paper's first stage (§3.2–3.3): the estimate and the observation it used.
 
@@ -212,6 +344,16 @@ def stage_one(
     strict_t_max : bool
         Raise when E_p is smallest at t_max (default); ``full`` turns this
         off because its multi-start does not rely on t*.
+    origin : {"peak", "subpixel", "mirror-oracle", "model"}
+        Where the ray of eq. 9 starts (:data:`ORIGINS`): ``"peak"`` (default,
+        the printed paper) the brightest pixel; ``"subpixel"`` a log-Gaussian
+        sub-pixel peak; ``"mirror-oracle"`` ORACLE, the exact mirror point of
+        the capture's true lamp (reads the truth; refused without one);
+        ``"model"`` DEPARTURE from the paper, the peak corrected by the
+        model's predicted offset, iterated with t (:func:`model_origin`).
+    origin_shift : float
+        With ``origin="mirror-oracle"`` only: start at ``m + s·(p − m)``, m the
+        mirror point, p the brightest pixel (0: m, 1: p).
 
     Raises
     ------
@@ -224,11 +366,25 @@ def stage_one(
     t_max, dt = t_search_defaults(obs, t_max, dt)
     timings = {"observe": time.perf_counter() - clock}
     clock = time.perf_counter()
-    ray = RaySearch(obs)
     if search not in SEARCHES:
         raise UserError(f"option search: expected one of {', '.join(SEARCHES)}, got {search!r}")
+    if origin not in ORIGINS:
+        raise UserError(f"option origin: expected one of {', '.join(ORIGINS)}, got {origin!r}")
     kwargs = {"n_coarse": int(n_coarse)} if search == "fast" else {}
-    found = SEARCHES[search](ray.ep, t_max=t_max, dt=dt, **kwargs)
+
+    def run(ray: RaySearch) -> dict:
+        return SEARCHES[search](ray.ep, t_max=t_max, dt=dt, **kwargs)
+
+    start = origin_pixel(capture, obs, origin, float(origin_shift))
+    extra: dict = {}
+    if origin == "model":
+        ray, found, path = model_origin(obs, run, start, f"{capture.name}: specular")
+        extra = {"origin": origin, "ray_origin_pixel": path[-1], "origin_path": path}
+    else:
+        ray = RaySearch(obs, None if start is None else surface_at(obs, start))
+        found = run(ray)
+        if start is not None:
+            extra = {"origin": origin, "ray_origin_pixel": start.tolist(), "origin_shift": float(origin_shift)}
     if strict_t_max and found["k"] >= found["k_max"]:
         raise UserError(
             f"{capture.name}: option t_max = {t_max:.4g} m cannot reach the lamp: E_p(t) is smallest at t_max "
@@ -259,6 +415,7 @@ def stage_one(
             "ep_evaluations": ray.evaluations,
             "t_grid": found["t_grid"],
             "ep": found["ep"],
+            **extra,
         },
         timings=timings,
     ), obs
