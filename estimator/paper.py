@@ -591,6 +591,66 @@ def alternating_minimisation(
     }
 
 
+#: Refinements of stage 2 (option ``am``): ``printed`` (§3.4 as printed, ±Δt
+#: steps of t) and ``bounded`` (a DEPARTURE from the printed paper:
+#: :func:`bounded_minimisation`).
+AMS = ("printed", "bounded")
+
+
+def bounded_minimisation(energy: Energy, *, ks: np.ndarray, sigma: float, t: float, t_max: float, dt: float,
+                         n_coarse: int = 24, span: float = 4.0) -> dict:
+    """Stage 2 with E re-measured at every t and a proper 1-D search over t (a DEPARTURE from §3.4).
+
+    The printed AM moves t by ±Δt per outer iteration and stops where both
+    neighbours cost energy with Ks, σ fitted to the current t: a
+    coordinate-wise minimum, short of the minimum along the ray. Here t
+    minimises the profile ``min over Ks, σ of E_energy(Ks, σ, t)`` (Ks
+    exact least squares for each σ; σ by a bounded Brent search on ln σ
+    within a factor 10 of the first stage's), first on ``n_coarse``
+    log-spaced t in ``[t*/span, min(span·t*, t_max)]``, then by a bounded
+    Brent search between the coarse minimum's neighbours to Δt/10.
+    ``energy`` should re-measure E at each t (``radiance`` or ``ratio-t``).
+
+    Returns
+    -------
+    dict
+        ``ks``, ``sigma``, ``t``, ``energy`` (the profile at the coarse t,
+        then at the result), ``t_coarse``, ``evaluations`` (profile
+        evaluations), ``converged``.
+    """
+    bounds = (np.log(sigma) - np.log(10.0), np.log(sigma) + np.log(10.0))
+    calls = [0]
+
+    def profile(tc: float) -> tuple[float, np.ndarray, float]:
+        calls[0] += 1
+        E, a2, base = energy.at(tc)
+
+        def fit(log_sigma: float) -> tuple[float, np.ndarray]:
+            g = energy.lobe(a2, base, float(np.exp(-log_sigma)))
+            gg = float(g @ g)
+            if not gg > 0:
+                return np.inf, np.zeros(3)
+            k = (E * g[:, None]).sum(axis=0) / gg
+            return energy.value(E, k, g), k
+
+        res = minimize_scalar(lambda x: fit(x)[0], bounds=bounds, method="bounded", options={"xatol": 1e-7})
+        value, k = fit(float(res.x))
+        return value, k, float(np.exp(res.x))
+
+    lo, hi = t / span, min(span * t, t_max)
+    grid = np.geomspace(lo, hi, n_coarse)
+    values = np.array([profile(tc)[0] for tc in grid])
+    i = int(np.argmin(values))
+    a, b = grid[max(i - 1, 0)], grid[min(i + 1, n_coarse - 1)]
+    res = minimize_scalar(lambda tc: profile(tc)[0], bounds=(a, b), method="bounded", options={"xatol": dt / 10})
+    t_best = float(res.x) if res.fun <= values[i] else float(grid[i])
+    value, ks_best, sigma_best = profile(t_best)
+    return {
+        "ks": ks_best, "sigma": sigma_best, "t": t_best, "energy": np.append(values, value),
+        "t_coarse": grid, "evaluations": calls[0], "converged": bool(res.success),
+    }
+
+
 @forwards(stage_one)
 def paper_estimate(
     capture: Capture,
@@ -603,6 +663,7 @@ def paper_estimate(
     max_outer: Count = 2000,
     pixels: Choice(Energy.PIXELS) = "surface",
     energy: Choice(Energy.SPACES) = "ratio",
+    am: Choice(AMS) = "printed",
     **init_options,
 ) -> Estimate:
     """Method ``paper``: ``paper-init`` followed by the AM refinement of eq. 18 (§3.4).
@@ -622,7 +683,12 @@ def paper_estimate(
     energy : {"ratio", "ratio-t", "radiance"}
         ``"ratio"`` (default): eq. 18 as printed, E measured once at t*;
         ``"ratio-t"``: E re-measured at every t; ``"radiance"``: image-space
-        residuals; see :class:`Energy`.
+        residuals; see :class:`Energy`. With ``am="bounded"``, which
+        re-measures E at every t, ``"ratio"`` is read as ``"radiance"``.
+    am : {"printed", "bounded"}
+        ``"printed"`` (default): the AM of §3.4 (t in ±Δt steps);
+        ``"bounded"``: DEPARTURE from the printed paper, t by a 1-D search
+        of the profile energy (:func:`bounded_minimisation`).
     **init_options
         Options of :func:`stage_one` (``separation``, ``threshold``,
         ``t_max``, ``dt``, ``search``, ``n_coarse``).
@@ -630,12 +696,19 @@ def paper_estimate(
     init, obs = stage_one(capture, **init_options)
     clock = time.perf_counter()
     d = init.diagnostics
+    if am == "bounded" and energy == "ratio":
+        energy = "radiance"
     objective = Energy(obs, np.asarray(d["ray_origin"]), np.asarray(d["ray_direction"]), pixels=pixels, space=energy,
                        t_ref=init.stages["init"]["t"])
-    am = alternating_minimisation(
-        objective, ks=init.ks, sigma=init.sigma, t=init.stages["init"]["t"], dt=d["dt"], gamma=gamma,
-        eps1=eps1, eps2=eps2, eps3=eps3, eps4=eps4, max_outer=max_outer,
-    )
+    if am == "bounded":
+        am = bounded_minimisation(objective, ks=init.ks, sigma=init.sigma, t=init.stages["init"]["t"],
+                                  t_max=d["t_max"], dt=d["dt"])
+        am["am"], am["space"] = "bounded", energy
+    else:
+        am = alternating_minimisation(
+            objective, ks=init.ks, sigma=init.sigma, t=init.stages["init"]["t"], dt=d["dt"], gamma=gamma,
+            eps1=eps1, eps2=eps2, eps3=eps3, eps4=eps4, max_outer=max_outer,
+        )
     lamp = objective.origin + am["t"] * objective.direction
     timings = {**init.timings, "am": time.perf_counter() - clock}
     stage = {k: v for k, v in am.items() if k != "energy"}
