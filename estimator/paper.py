@@ -485,7 +485,7 @@ class Energy:
         self._coef = {
             "ww": np.einsum("nk,nk->n", w, w), "wd": w @ D, "dd": float(D @ D), "nw": np.einsum("nk,nk->n", self.N, w),
             "nd": self.N @ D, "vw": np.einsum("nk,nk->n", V, w), "vd": V @ D, "nv": np.einsum("nk,nk->n", self.N, V),
-            "vv": np.einsum("nk,nk->n", V, V),
+            "vv1": 1.0 + np.einsum("nk,nk->n", V, V),
         }
         self._I_cols = np.ascontiguousarray(self.I.T)
         self._E_cols = np.ascontiguousarray(self.E_ref.T) if space == "ratio" else None
@@ -518,10 +518,20 @@ class Energy:
         c = self._coef
         r2 = c["ww"] + t * (2.0 * c["wd"] + t * c["dd"])
         r = np.sqrt(r2)
-        nl = (c["nw"] + t * c["nd"]) / r
-        vl = (c["vw"] + t * c["vd"]) / r
-        cos_a = (nl + c["nv"]) / np.sqrt(1.0 + 2.0 * vl + c["vv"])
-        a2 = np.arccos(np.clip(cos_a, -1.0, 1.0)) ** 2
+        nl = c["nd"] * t
+        nl += c["nw"]
+        nl /= r
+        vl = c["vd"] * t
+        vl += c["vw"]
+        vl /= r
+        vl *= 2.0
+        vl += c["vv1"]
+        np.sqrt(vl, out=vl)
+        nl += c["nv"]
+        nl /= vl
+        np.clip(nl, -1.0, 1.0, out=nl)
+        a2 = np.arccos(nl, out=nl)
+        a2 *= a2
         if self.space == "ratio":
             out = (self._E_cols, a2, self._base)
         elif self.space == "ratio-t":
@@ -598,7 +608,8 @@ def _am_fast(energy: Energy, *, ks, sigma, t, dt, gamma, eps, max_outer, max_inn
     lobe = energy.lobe
 
     def residual(E: np.ndarray, k: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, float]:
-        R = E - k[:, None] * g
+        R = np.multiply(k[:, None], g)
+        np.subtract(E, R, out=R)
         flat = R.reshape(-1)
         return R, float(flat @ flat)
 
