@@ -598,13 +598,35 @@ def alternating_minimisation(
                         max_outer=max_outer, max_inner=max_inner)
 
 
+def _am_eps(ks: np.ndarray, sigma: float, dt: float, eps: tuple) -> tuple[float, float, float, float]:
+    """ε1–ε4 with the defaults of :func:`alternating_minimisation` for those that are None."""
+    eps1, eps2, eps3, eps4 = eps
+    return (1e-6 * sigma if eps1 is None else eps1, 1e-6 * float(np.max(np.abs(ks))) if eps2 is None else eps2,
+            1e-6 * sigma if eps3 is None else eps3, dt / 2 if eps4 is None else eps4)
+
+
+def _am_done(ks_new: np.ndarray, ks: np.ndarray, sigma_new: float, sigma_old: float, t_new: float, t: float,
+             eps: tuple[float, float, float, float]) -> bool:
+    """Step 7's test: Ks, σ and t each moved by at most ε2, ε3, ε4."""
+    return (float(np.max(np.abs(ks_new - ks))) <= eps[1] and abs(sigma_new - sigma_old) <= eps[2]
+            and abs(t_new - t) <= eps[3])
+
+
+def _am_result(ks: np.ndarray, kappa: float, t: float, history: list, counts: tuple[int, int, int, bool],
+               gamma: float | None, eps: tuple) -> dict:
+    """The AM's result dict (see :func:`alternating_minimisation`); counts: outer, inner, halvings, converged."""
+    outer, inner, halvings, converged = counts
+    return {
+        "ks": ks, "sigma": 1.0 / kappa, "t": t, "energy": np.array(history), "outer": outer,
+        "inner": inner, "halvings": halvings, "gamma": "gauss-newton" if gamma is None else gamma,
+        "eps": list(eps), "converged": converged,
+    }
+
+
 def _am_fast(energy: Energy, *, ks, sigma, t, dt, gamma, eps, max_outer, max_inner) -> dict:
     ks = np.asarray(ks, dtype=float).copy()
-    eps1, eps2, eps3, eps4 = eps
-    eps1 = 1e-6 * sigma if eps1 is None else eps1
-    eps3 = 1e-6 * sigma if eps3 is None else eps3
-    eps2 = 1e-6 * float(np.max(np.abs(ks))) if eps2 is None else eps2
-    eps4 = dt / 2 if eps4 is None else eps4
+    eps = _am_eps(ks, sigma, dt, eps)
+    eps1 = eps[0]
     lobe = energy.lobe
 
     def residual(E: np.ndarray, k: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, float]:
@@ -618,7 +640,6 @@ def _am_fast(energy: Energy, *, ks, sigma, t, dt, gamma, eps, max_outer, max_inn
     g = lobe(a2, base, kappa)
     history = [residual(E, ks, g)[1]]
     inner_total = halvings = 0
-    converged = False
     for outer in range(1, max_outer + 1):
         # step 2: exact least-squares Ks for fixed σ, t
         ks_new = (E @ g) / float(g @ g)
@@ -657,64 +678,30 @@ def _am_fast(energy: Energy, *, ks, sigma, t, dt, gamma, eps, max_outer, max_inn
                 best = (vc, tc, Ec, a2c, bc, gc)
         current, t_new, E, a2, base, g = best
         history.append(current)
-        d_ks = float(np.max(np.abs(ks_new - ks)))
-        d_sigma = abs(1.0 / kappa - sigma_old)
-        d_t = abs(t_new - t)
+        converged = _am_done(ks_new, ks, 1.0 / kappa, sigma_old, t_new, t, eps)
         ks, t = ks_new, t_new
-        if d_ks <= eps2 and d_sigma <= eps3 and d_t <= eps4:
-            converged = True
+        if converged:
             break
-    return {
-        "ks": ks, "sigma": 1.0 / kappa, "t": t, "energy": np.array(history), "outer": outer,
-        "inner": inner_total, "halvings": halvings, "gamma": "gauss-newton" if gamma is None else gamma,
-        "eps": [eps1, eps2, eps3, eps4], "converged": converged,
-    }
+    return _am_result(ks, kappa, t, history, (outer, inner_total, halvings, converged), gamma, eps)
 
 
 def alternating_minimisation_reference(
-    energy: Energy,
-    *,
-    ks: np.ndarray,
-    sigma: float,
-    t: float,
-    dt: float,
-    gamma: float | None = None,
-    eps1: float | None = None,
-    eps2: float | None = None,
-    eps3: float | None = None,
-    eps4: float | None = None,
-    max_outer: int = 2000,
-    max_inner: int = 200,
+    energy: Energy, *, ks: np.ndarray, sigma: float, t: float, dt: float, gamma: float | None = None,
+    eps: tuple = (None, None, None, None), max_outer: int = 2000, max_inner: int = 200,
 ) -> dict:
-    """Steps 1–6 of §3.4 from ``(ks, sigma, t)``, transcribed plainly; see the module docstring.
+    """Steps 1–6 of §3.4, transcribed plainly: what :func:`alternating_minimisation` must agree with.
 
-    The reference :func:`alternating_minimisation` must agree with (the
-    same steps, t, counts; Ks, σ to rounding); slow: on a 640×480 capture
-    whose t walks 1.4 m in 1-mm steps, about 3.5 minutes.
-
-    Defaults: ``ε1 = ε3 = 1e-6 σ*``, ``ε2 = 1e-6 max Ks*``, ``ε4 = Δt/2``
-    (t moves by Δt, so any move continues). ``gamma=None`` (default) takes
-    at each step the inverse Gauss–Newton curvature in κ,
-    ``1 / (2 Σ (∂ρ/∂κ)²)``; a number fixes γ. Either way a step that would
-    increase E_energy is halved until it does not.
-
-    Returns
-    -------
-    dict
-        ``ks``, ``sigma``, ``t``, ``energy`` (E_energy after each outer
-        iteration, starting with the initial value), ``outer``, ``inner``
-        (total inner steps), ``halvings``, ``gamma``, ``eps``, ``converged``.
+    The same options (``eps`` = ``(eps1, eps2, eps3, eps4)``) and result;
+    the same steps, t and counts, Ks and σ to rounding. Slow: on a 640×480
+    capture whose t walks 1.4 m in 1-mm steps, about 3.5 minutes.
     """
     ks = np.asarray(ks, dtype=float).copy()
-    eps1 = 1e-6 * sigma if eps1 is None else eps1
-    eps3 = 1e-6 * sigma if eps3 is None else eps3
-    eps2 = 1e-6 * float(np.max(np.abs(ks))) if eps2 is None else eps2
-    eps4 = dt / 2 if eps4 is None else eps4
+    eps = _am_eps(ks, sigma, dt, eps)
+    eps1 = eps[0]
     E, a2, base = energy.at(t)
     kappa = 1.0 / sigma
     history = [energy.value(E, ks, energy.lobe(a2, base, kappa))]
     inner_total = halvings = 0
-    converged = False
     for outer in range(1, max_outer + 1):
         # step 2: exact least-squares Ks for fixed σ, t
         g = energy.lobe(a2, base, kappa)
@@ -753,18 +740,11 @@ def alternating_minimisation_reference(
                 best = (vc, tc, Ec, a2c, bc)
         current, t_new, E, a2, base = best
         history.append(current)
-        d_ks = float(np.max(np.abs(ks_new - ks)))
-        d_sigma = abs(1.0 / kappa - sigma_old)
-        d_t = abs(t_new - t)
+        converged = _am_done(ks_new, ks, 1.0 / kappa, sigma_old, t_new, t, eps)
         ks, t = ks_new, t_new
-        if d_ks <= eps2 and d_sigma <= eps3 and d_t <= eps4:
-            converged = True
+        if converged:
             break
-    return {
-        "ks": ks, "sigma": 1.0 / kappa, "t": t, "energy": np.array(history), "outer": outer,
-        "inner": inner_total, "halvings": halvings, "gamma": "gauss-newton" if gamma is None else gamma,
-        "eps": [eps1, eps2, eps3, eps4], "converged": converged,
-    }
+    return _am_result(ks, kappa, t, history, (outer, inner_total, halvings, converged), gamma, eps)
 
 
 #: Refinements of stage 2 (option ``am``): ``printed`` (§3.4 as printed, ±Δt
