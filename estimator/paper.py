@@ -32,7 +32,22 @@ steps are implemented as what they are meant to do rather than as printed:
   capture), and a step that would increase E_energy is halved until it does
   not (so E_energy never increases).
 
-Step 6 searches ``{t − Δt, t, t + Δt}``, keeping t on ties.
+Step 6 searches ``{t − Δt, t, t + Δt}``, keeping t on ties. The AM runs
+fast (:func:`alternating_minimisation`) and walks exactly the steps of its
+plain transcription (:func:`alternating_minimisation_reference`).
+
+Options beyond the printed paper (issue 11), each named for what it is:
+
+* ``origin`` (both methods): where the ray of eq. 9 starts. ``peak`` (the
+  default, the printed paper), ``subpixel``, ``model`` (a DEPARTURE: the
+  brightest pixel corrected by the offset δ ∝ σ² the model predicts, since
+  1/r² and 1/cos θr move the intensity maximum away from the mirror point),
+  and the ORACLE ``mirror-oracle`` (the true mirror point, read from the
+  capture's truth; with ``origin_shift`` s, the point ``m + s·δ``), which
+  separates the method's error from its origin's;
+* ``am`` (``paper``): ``printed`` (default) or ``bounded`` (a DEPARTURE: E
+  re-measured at every t, t by a bounded 1-D search of the profile energy,
+  which cannot stall on ±Δt steps; :func:`bounded_minimisation`).
 
 Both methods are discontinuous by design: they pick the brightest specular
 pixel (the peak) and a t on the Δt grid, and an image change that reorders
