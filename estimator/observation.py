@@ -359,32 +359,46 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = 0.0
     )
 
 
-def subpixel_peak(lum: np.ndarray, usable: np.ndarray, peak: tuple[int, int]) -> np.ndarray:
+#: Half-width (pixels) of the window of :func:`subpixel_peak`.
+SUBPIXEL_RADIUS = 2
+
+
+def subpixel_peak(lum: np.ndarray, usable: np.ndarray, peak: tuple[int, int], *,
+                  radius: int = SUBPIXEL_RADIUS) -> np.ndarray:
     """Sub-pixel peak ``(row, column)`` of ``lum`` around the pixel ``peak``.
 
-    A log-Gaussian fit in each direction: a parabola through ``ln lum`` at the
-    peak and its two neighbours (exact for a Gaussian lobe sampled on the
-    grid), offset clipped to ±0.5 px. A direction whose neighbours are not
-    ``usable`` or not positive keeps the pixel centre.
+    A log-Gaussian fit: a 2-D quadratic in ``ln lum`` over the
+    ``(2·radius + 1)²`` window (usable, positive pixels), weighted by
+    ``lum²`` (the log's noise falls as 1/lum) and its stationary point, exact
+    for a Gaussian lobe sampled on the grid and less moved by noise than a
+    three-point parabola. Falls back to the pixel centre when the fit has no
+    maximum within the window (fewer than 6 pixels, a saddle).
 
     Returns
     -------
     ndarray, shape (2,)
         Row and column in pixel units, integers at pixel centres.
     """
-    out = np.array(peak, dtype=float)
-    for axis, step in ((0, (1, 0)), (1, (0, 1))):
-        lo = (peak[0] - step[0], peak[1] - step[1])
-        hi = (peak[0] + step[0], peak[1] + step[1])
-        if not all(0 <= lo[k] and hi[k] < lum.shape[k] for k in (0, 1)):
-            continue
-        if not (usable[lo] and usable[hi] and lum[lo] > 0 and lum[hi] > 0 and lum[peak] > 0):
-            continue
-        a, b, c = np.log(lum[lo]), np.log(lum[peak]), np.log(lum[hi])
-        curvature = a - 2.0 * b + c
-        if curvature < 0:
-            out[axis] += float(np.clip(0.5 * (a - c) / curvature, -0.5, 0.5))
-    return out
+    i0, j0 = peak
+    H, W = lum.shape
+    rows = slice(max(i0 - radius, 0), min(i0 + radius + 1, H))
+    cols = slice(max(j0 - radius, 0), min(j0 + radius + 1, W))
+    win, ok = lum[rows, cols], usable[rows, cols] & (lum[rows, cols] > 0)
+    if ok.sum() < 6 or not lum[peak] > 0:
+        return np.array(peak, dtype=float)
+    y, x = np.nonzero(ok)
+    y = y + rows.start - i0
+    x = x + cols.start - j0
+    v = win[ok] / lum[peak]
+    A = np.stack([np.ones_like(v), y, x, y * y, y * x, x * x], axis=1) * v[:, None]
+    coef = np.linalg.lstsq(A, np.log(v) * v, rcond=None)[0]
+    hess = np.array([[2 * coef[3], coef[4]], [coef[4], 2 * coef[5]]])
+    if not (np.all(np.isfinite(hess)) and hess[0, 0] < 0 and np.linalg.det(hess) > 0):
+        return np.array(peak, dtype=float)
+    off = np.linalg.solve(hess, -coef[1:3])
+    if np.max(np.abs(off)) > radius:
+        return np.array(peak, dtype=float)
+    return np.array(peak, dtype=float) + off
 
 
 def surface_at(obs: Observation, rc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -216,8 +216,8 @@ def t_search_defaults(obs: Observation, t_max: float | None, dt: float | None) -
 #: iterated with t (:func:`model_origin`).
 ORIGINS = ("peak", "subpixel", "mirror-oracle", "model")
 #: ``origin: model``: most fixed-point iterations, and the move (px) that ends them.
-MODEL_ORIGIN_ITERATIONS = 12
-MODEL_ORIGIN_TOLERANCE_PX = 0.01
+MODEL_ORIGIN_ITERATIONS = 20
+MODEL_ORIGIN_TOLERANCE_PX = 0.001
 
 
 def _brightness(obs: Observation) -> np.ndarray:

@@ -70,7 +70,7 @@ def test_mirror_oracle_refuses_a_capture_without_truth():
 @pytest.mark.parametrize("kwargs", [{}, {"shape": "sphere", "lamp_position": (0.1, 0.1, 0.6)}], ids=["board", "sphere"])
 def test_model_origin_closes_most_of_the_peak_offset(kwargs):
     # origin=model (a departure from the paper) corrects the brightest pixel by the offset the TS
-    # model predicts. Measured: board 0.84 % (peak: 52 %), sphere 0.00 % (peak: 11 %).
+    # model predicts. Measured: board 0.10 % (peak: 52 %), sphere 0.00 % (peak: 11 %).
     cap = analytic_capture(bsdf=TS, analyzer_angles_deg=None, **kwargs)
     est = estimate(cap, method="paper-init", origin="model")
     lamp = np.array(cap.truth["lamp_position"])
@@ -109,8 +109,8 @@ def test_am_printed_is_the_default_bit_for_bit():
 
 @pytest.mark.parametrize("kwargs", [{}, {"shape": "sphere", "lamp_position": (0.1, 0.1, 0.6)}], ids=["board", "sphere"])
 def test_model_origin_with_bounded_am(kwargs):
-    # The corrected variant end to end (origin=model, am=bounded). Measured: board 0.09 %,
-    # sphere 0.24 % of the lamp distance (printed paper: 59 %, 27 %).
+    # The corrected variant end to end (origin=model, am=bounded). Measured: board 0.01 %,
+    # sphere 0.00 % of the lamp distance (printed paper: 59 %, 27 %).
     cap = analytic_capture(bsdf=TS, analyzer_angles_deg=None, **kwargs)
     est = estimate(cap, method="paper", origin="model", am="bounded")
     lamp = np.array(cap.truth["lamp_position"])
