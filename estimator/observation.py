@@ -336,7 +336,7 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = 0.0
     if mask.sum() < MIN_SPECULAR_PIXELS:
         raise UserError(
             f"{capture.name}: specular: only {int(mask.sum())} pixels above threshold {threshold} x peak "
-            f"(need {MIN_SPECULAR_PIXELS}); lower --option threshold=..."
+            f"(need {MIN_SPECULAR_PIXELS}); lower it with --set threshold=..."
         )
     i, j = peak
     if i in (0, capture.height - 1) or j in (0, capture.width - 1):

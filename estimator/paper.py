@@ -404,7 +404,7 @@ def stage_one(
     if strict_t_max and found["k"] >= found["k_max"]:
         raise UserError(
             f"{capture.name}: option t_max = {t_max:.4g} m cannot reach the lamp: E_p(t) is smallest at t_max "
-            "(the lamp is farther, or the peak ray misses it); raise --option t_max=... or use --method full"
+            "(the lamp is farther, or the peak ray misses it); raise it with --set t_max=... or use --method full"
         )
     timings["t_search"] = time.perf_counter() - clock
     clock = time.perf_counter()
@@ -833,7 +833,7 @@ def paper_estimate(
     eps4: Positive | None = None,
     max_outer: Count = 2000,
     pixels: Choice(Energy.PIXELS) = "surface",
-    energy: Choice(Energy.SPACES) = "ratio",
+    energy: Choice(Energy.SPACES) | None = None,
     am: Choice(AMS) = "printed",
     **init_options,
 ) -> Estimate:
@@ -851,11 +851,12 @@ def paper_estimate(
         AM options; see :func:`alternating_minimisation` for defaults.
     pixels : {"surface", "specular"}
         Pixels of E_energy (default every surface pixel, as the paper's N_k).
-    energy : {"ratio", "ratio-t", "radiance"}
-        ``"ratio"`` (default): eq. 18 as printed, E measured once at t*;
-        ``"ratio-t"``: E re-measured at every t; ``"radiance"``: image-space
-        residuals; see :class:`Energy`. With ``am="bounded"``, which
-        re-measures E at every t, ``"ratio"`` is read as ``"radiance"``.
+    energy : {"ratio", "ratio-t", "radiance"}, optional
+        ``"ratio"`` (default of the printed AM): eq. 18 as printed, E measured
+        once at t*; ``"ratio-t"``: E re-measured at every t; ``"radiance"``
+        (default of ``am="bounded"``): image-space residuals; see
+        :class:`Energy`. ``am="bounded"`` re-measures E at every t, so it
+        refuses ``"ratio"`` (a one-line error, not a silent substitution).
     am : {"printed", "bounded"}
         ``"printed"`` (default): the AM of §3.4 (t in ±Δt steps);
         ``"bounded"``: DEPARTURE from the printed paper, t by a 1-D search
@@ -868,7 +869,9 @@ def paper_estimate(
     clock = time.perf_counter()
     d = init.diagnostics
     if am == "bounded" and energy == "ratio":
-        energy = "radiance"
+        raise UserError("option energy=ratio measures E once, at t*; am=bounded re-measures it at every t: "
+                        "use energy=radiance (its default) or ratio-t")
+    energy = energy or ("radiance" if am == "bounded" else "ratio")
     objective = Energy(obs, np.asarray(d["ray_origin"]), np.asarray(d["ray_direction"]), pixels=pixels, space=energy,
                        t_ref=init.stages["init"]["t"])
     if am == "bounded":

@@ -172,3 +172,10 @@ def test_a_sharp_lobes_peak_is_not_a_spike_but_a_hot_pixel_is():
     spec[i, j] *= 5.0
     hot = observe(dataclasses.replace(cap, specular=spec))
     assert not hot.mask[i, j] and hot.peak == ref.peak
+
+
+def test_bounded_am_refuses_the_printed_energy_instead_of_substituting():
+    """am=bounded re-measures E at every t; energy=ratio (E once at t*) with it is a one-line error."""
+    cap = analytic_capture(width=48, height=36)
+    with pytest.raises(UserError, match="energy=ratio.*am=bounded"):
+        estimate(cap, method="paper", am="bounded", energy="ratio")

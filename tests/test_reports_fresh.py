@@ -1,0 +1,34 @@
+"""Every committed report describes the code in this checkout (nearlight.evaluation.provenance).
+
+A report under ``reports/`` records the command that made it and the content
+hash of every nearlight source file in the import closure of that command
+(``provenance.json``). When any of those files changes, the report is stale:
+this test fails and names the files and the command that regenerates it.
+Regression baselines (``*-baseline``) are held to the code by ``nearlight
+compare`` instead (tests/test_evaluation_smoke.py), so here they only have to
+say what made them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from nearlight.evaluation import provenance
+
+REPORTS = Path(__file__).resolve().parent.parent / "reports"
+FOLDERS = sorted(p for p in REPORTS.iterdir() if p.is_dir())
+
+
+def test_there_are_committed_reports():
+    assert len(FOLDERS) >= 3, FOLDERS
+
+
+@pytest.mark.parametrize("folder", FOLDERS, ids=lambda p: p.name)
+def test_committed_report_was_made_by_the_code_in_this_checkout(folder):
+    if provenance.is_baseline(folder):
+        assert (folder / provenance.FILE).is_file(), f"{folder}: no {provenance.FILE}"
+        pytest.skip("a baseline: compared by nearlight compare, not hashed")
+    stale = provenance.stale(folder)
+    assert not stale, f"reports/{folder.name} is stale:\n" + "\n".join(stale)
