@@ -40,12 +40,12 @@ from typing import Any
 
 import numpy as np
 
-from ..capture import Camera, Capture
+from ..capture import Camera, Capture, Rig
 from ..errors import UserError
 from ..files.atomic import atomic_write
 from ..physics.polarization import analyzer_stack
 from .lamp import filter_axes
-from .scene import MitsubaMaterial, Scene
+from .scene import LAMP_V1_KEYS, LampSpec, MitsubaMaterial, Scene
 
 #: Bump when a change alters rendered values (invalidates caches).
 RENDER_VERSION = 1
@@ -138,9 +138,14 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
     intensity = 1.0 if channel is None else scene.lamp.intensity[channel]
     facing = scene.lamp_facing
     if lamp_route == "emitter":
-        lamps = {"lamp": lamp.polarized_lamp(scene.lamp.position, intensity, scene.lamp.polarizer_axis, facing)}
+        spec = scene.lamp
+        lamps = {"lamp": lamp.polarized_lamp(spec.position, intensity, spec.polarizer_axis, facing,
+                                             extinction_ratio=spec.polarizer_extinction_ratio,
+                                             anisotropy_k=spec.anisotropy_k, anisotropy_axis=spec.anisotropy_axis)}
         integrator = {"type": "path", "max_depth": scene.capture.max_depth}
     else:
+        if not scene.lamp_is_v1:
+            raise ValueError("the polarizer-sheet route renders only an ideal isotropic point lamp")
         lamps = lamp.polarizer_sheet(mi, scene.lamp.position, intensity, scene.lamp.polarizer_axis, facing)
         integrator = {"type": "volpath", "max_depth": scene.capture.max_depth}
     if stokes:
@@ -297,8 +302,11 @@ def lamp_inside(mi: ModuleType, mscene: Any, position: Any) -> bool:
 
 
 def render_key(scene: Scene) -> str:
-    """Hash of everything the clean render depends on (not noise, seed, angles)."""
+    """Hash of everything the clean render depends on (not noise, seed, angles, nor the nuisances applied after
+    rendering); lamp nuisances at their off values are left out, so a scene without them keeps its v1 key."""
     doc = scene.model_dump(mode="json")
+    default_lamp = LampSpec(position=scene.lamp.position).model_dump(mode="json")
+    doc["lamp"] = {k: v for k, v in doc["lamp"].items() if k in LAMP_V1_KEYS or v != default_lamp[k]}
     cap = doc["capture"]
     relevant = {
         "version": RENDER_VERSION,
@@ -552,6 +560,21 @@ def _check_geometry(mi: ModuleType, scene: Scene, geometry: Any, P: np.ndarray) 
         raise UserError(f"{scene.source}: lamp.position: {list(scene.lamp.position)} is inside the object")
 
 
+def lamp_truth(scene: Scene) -> dict[str, Any]:
+    """The scene's lamp as ``truth.lamps[i]`` of capture format v2 (world frame, metres, W/sr)."""
+    spec = scene.lamp
+    axis = spec.anisotropy_axis if spec.anisotropy_axis is not None else scene.lamp_facing
+    return {
+        "position": list(spec.position),
+        "intensity": list(spec.intensity),
+        "radius_m": 0.0,
+        "anisotropy": None if spec.anisotropy_k == 0 else
+        {"k": spec.anisotropy_k, "axis": (np.asarray(axis, float) / np.linalg.norm(axis)).tolist()},
+        "polarizer_axis": filter_axes(spec.polarizer_axis, scene.lamp_facing)[0].tolist(),
+        "polarizer_extinction_ratio": spec.polarizer_extinction_ratio,
+    }  # fmt: skip
+
+
 def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Capture:
     """The clean :class:`Capture` from rendered arrays."""
     P, N = arrays["P"].astype(np.float32), arrays["N"].astype(np.float32)
@@ -577,7 +600,9 @@ def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Captur
             "lamp_position": list(scene.lamp.position),
             "lamp_intensity": list(scene.lamp.intensity),
             "bsdf": scene.material.truth(),
+            "lamps": [lamp_truth(scene)],
         },
+        rig=Rig(lamp_polarizer_extinction_ratio=scene.lamp.polarizer_extinction_ratio),
         extra=extra,
         meta={
             "generator": {

@@ -114,6 +114,26 @@ SCENE_BREAKS: dict[str, list[Any]] = {
                       {"saturation": "max"}, {"unknown": 1}],  # fmt: skip
     "capture.range_noise_m": [-0.001, "1mm"],
     "capture.seed": [-1, 1.5, "seed"],
+    # nuisances (issue 13)
+    "realism": ["messy", 3, None],
+    "lamp.polarizer_extinction_ratio": [0.9, -1, "ideal"],
+    "lamp.anisotropy_k": [-1, "cos"],
+    "lamp.anisotropy_axis": [[0, 0, 0], [1, 0]],
+    "nuisances": ["bench", [1]],
+    "nuisances.analyzer.extinction_ratio": [0.5, "high"],
+    "nuisances.analyzer.offset_deg": [91, "x"],
+    "nuisances.analyzer.jitter_deg": [-0.1],
+    "nuisances.camera.vignetting": [1.0, -0.1],
+    "nuisances.camera.gamma": [0, -2.2],
+    "nuisances.camera.flicker": [-0.01, 2],
+    "nuisances.camera.white_balance": [[1, 1], [0, 1, 1]],
+    "nuisances.range.holes_shiny_above": [0, 1.5],
+    "nuisances.range.holes_dark_below": [1, -0.1],
+    "nuisances.range.shift_px": [[0.1], [9, 0], "left"],
+    "nuisances.range.quantum_m": [-0.001, 1],
+    "nuisances.calibration.position_m": [[0, 0], [1, 0, 0]],
+    "nuisances.calibration.rotation_deg": [[0, 0, 0, 0], [90, 0, 0]],
+    "nuisances.bogus.key": [1],
 }
 
 
