@@ -18,7 +18,16 @@ and then the emitter computes exactly what it did without them):
   light after it is ``I/2 · [1 + 1/ε, (1 − 1/ε) cos 2φ, (1 − 1/ε) sin 2φ, 0]``;
 - anisotropy: the radiant intensity leaving along the unit direction ``d`` is
   ``I · max(0, d·a)^k`` about the unit axis ``a`` (an LED's or a reflector
-  lamp's beam; ``k = 0`` is isotropic).
+  lamp's beam; ``k = 0`` is isotropic);
+- size: a sphere of radius ``a`` emitting uniformly (radiance ``I / (π a²)``,
+  so its intensity is ``I`` in every direction), behind the same filter. Each
+  sample picks one point of the sphere, uniformly in the solid angle it
+  subtends, so ``capture.spp`` now averages over the lamp too (Monte Carlo:
+  relative noise about ``Δ/√spp``, Δ the variation of the BRDF across the
+  lamp's angular size); a fully visible sphere gives a Lambertian surface the
+  point lamp's irradiance, and the sphere shrinks to the point lamp as
+  ``a → 0`` (tested). Shadows of a sphere lamp are soft (each sample's shadow
+  ray goes to its own point).
 
 Two independent routes, which the tests compare:
 
@@ -56,6 +65,9 @@ def register(mi: ModuleType) -> None:
             self.extinction = float(props.get("extinction_ratio", 0.0))  # 0: ideal
             self.k = float(props.get("anisotropy_k", 0.0))
             self.beam = mi.ScalarVector3f(props.get("anisotropy_axis", [0.0, 0.0, 1.0]))
+            self.radius = float(props.get("radius", 0.0))
+            # Also a sphere lamp is flagged delta: its one sampled point per sample is the whole estimate (no shape
+            # for BSDF-sampled rays to hit, so no MIS and nothing counted twice).
             self.m_flags = mi.EmitterFlags.DeltaPosition
 
         def sample_direction(self, it, sample, active=True):
@@ -67,6 +79,9 @@ def register(mi: ModuleType) -> None:
             d = ds.p - it.p
             ds.dist = dr.norm(d)
             ds.d = d / ds.dist
+            scale = dr.rcp(dr.square(ds.dist))
+            if self.radius > 0:
+                ds, scale = self._sample_sphere(it, sample, ds, d)
             forward = -ds.d  # propagation direction of the emitted light
             absorb = mi.Vector3f(self.absorb)
             transmit = dr.cross(forward, dr.normalize(absorb - dr.dot(absorb, forward) * forward))
@@ -76,10 +91,31 @@ def register(mi: ModuleType) -> None:
             else:
                 filt = mi.mueller.linear_polarizer(1.0)
             pol = mi.mueller.rotate_mueller_basis_collinear(filt, forward, transmit, mi.mueller.stokes_basis(forward))
-            value = dr.select(active, self.intensity / dr.square(ds.dist), 0.0)
+            value = dr.select(active, self.intensity * scale, 0.0)
             if self.k > 0:
                 value *= dr.power(dr.maximum(dr.dot(forward, mi.Vector3f(self.beam)), 0.0), self.k)
             return ds, mi.Spectrum(pol) * mi.depolarizer(mi.UnpolarizedSpectrum(value))
+
+        def _sample_sphere(self, it, sample, ds, to_centre):
+            """A point of the sphere lamp seen from ``it``, uniform in the solid angle of its visible cap.
+
+            Radiance ``L = I / (π a²)`` (a uniform Lambertian sphere of intensity ``I``) over the cone's solid angle
+            ``Ω = 2π (1 − cos θmax)``: the estimate is ``L · Ω`` times the lamp's polarizer (and beam) along the
+            sampled direction; it tends to ``I / d²`` as ``a → 0``. Zero inside the sphere.
+            """
+            a = self.radius
+            dc = dr.norm(to_centre)
+            axis = to_centre / dc
+            cos_max = dr.sqrt(dr.maximum(1.0 - dr.square(a / dc), 0.0))
+            direction = mi.Frame3f(axis).to_world(mi.warp.square_to_uniform_cone(sample, cos_max))
+            b = dr.dot(direction, to_centre)
+            miss = dr.squared_norm(to_centre - b * direction)  # squared distance of the ray from the centre
+            t = b - dr.sqrt(dr.maximum(a * a - miss, 0.0))
+            ds.p = it.p + t * direction
+            ds.dist = t
+            ds.d = direction
+            # L·Ω / ... = (I / πa²) · 2π (1 − cos θmax), with 1 − cos θmax = (a/dc)² / (1 + cos θmax): no cancellation
+            return ds, dr.select(dc > a, 2.0 / (dr.square(dc) * (1.0 + cos_max)), 0.0)
 
         def pdf_direction(self, it, ds, active=True):
             return mi.Float(0.0)
@@ -119,12 +155,14 @@ def filter_axes(axis, facing) -> tuple[np.ndarray, np.ndarray]:
 
 
 def polarized_lamp(position, intensity: float, axis, facing, *, extinction_ratio: float | None = None,
-                   anisotropy_k: float = 0.0, anisotropy_axis=None) -> dict:  # fmt: skip
+                   anisotropy_k: float = 0.0, anisotropy_axis=None, radius: float = 0.0) -> dict:  # fmt: skip
     """Mitsuba dict of the lamp as a polarized point emitter (the rendering route).
 
     ``extinction_ratio`` None is the ideal filter; ``anisotropy_k`` 0 an
     isotropic lamp, else ``I·max(0, d·a)^k`` about ``anisotropy_axis`` (unit
-    ``a``, default ``facing``). At those off values the dict is v1's exactly.
+    ``a``, default ``facing``); ``radius`` 0 a point, else a sphere of that
+    radius (m) with the same intensity, sampled once per sample. At those off
+    values the dict is v1's exactly.
     """
     out = {"type": PLUGIN, "position": list(map(float, position)), "intensity": float(intensity),
            "axis": list(map(float, axis)), "facing": list(map(float, facing))}  # fmt: skip
@@ -134,6 +172,8 @@ def polarized_lamp(position, intensity: float, axis, facing, *, extinction_ratio
         a = np.asarray(facing if anisotropy_axis is None else anisotropy_axis, float)
         out["anisotropy_k"] = float(anisotropy_k)
         out["anisotropy_axis"] = (a / np.linalg.norm(a)).tolist()
+    if radius > 0:
+        out["radius"] = float(radius)
     return out
 
 

@@ -19,7 +19,7 @@ from typing import Any
 PROFILES: dict[str, dict[str, Any]] = {
     "none": {},
     "lab": {
-        "lamp": {"polarizer_extinction_ratio": 1000.0},
+        "lamp": {"polarizer_extinction_ratio": 1000.0, "radius": 0.002},
         "nuisances": {
             "analyzer": {"extinction_ratio": 1000.0, "offset_deg": 0.1, "jitter_deg": 0.05},
             "camera": {"vignetting": 0.05, "flicker": 0.002},
@@ -28,7 +28,7 @@ PROFILES: dict[str, dict[str, Any]] = {
         },
     },
     "bench": {
-        "lamp": {"polarizer_extinction_ratio": 300.0, "anisotropy_k": 1.0},
+        "lamp": {"polarizer_extinction_ratio": 300.0, "anisotropy_k": 1.0, "radius": 0.005},
         "nuisances": {
             "analyzer": {"extinction_ratio": 300.0, "offset_deg": 0.5, "jitter_deg": 0.3},
             "camera": {"vignetting": 0.15, "flicker": 0.01, "white_balance": [1.05, 1.0, 0.95]},
@@ -37,7 +37,7 @@ PROFILES: dict[str, dict[str, Any]] = {
         },
     },
     "rough": {
-        "lamp": {"polarizer_extinction_ratio": 100.0, "anisotropy_k": 3.0},
+        "lamp": {"polarizer_extinction_ratio": 100.0, "anisotropy_k": 3.0, "radius": 0.015},
         "nuisances": {
             "analyzer": {"extinction_ratio": 100.0, "offset_deg": 2.0, "jitter_deg": 1.0},
             "camera": {"vignetting": 0.3, "gamma": 2.2, "flicker": 0.03, "white_balance": [1.2, 1.0, 0.85]},

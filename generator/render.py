@@ -10,7 +10,8 @@ How a capture is rendered
   calibrated range finder would pair them. With the default ``max_depth: 2``
   (direct light only, the paper's model) this is deterministic and one sample
   per pixel is exact; ``spp`` only averages the indirect bounces when
-  ``max_depth > 2``.
+  ``max_depth > 2``, and points of a sphere lamp (``lamp.radius`` > 0, then
+  ``spp × lamp.samples`` samples are traced, :func:`traced_spp`).
 - The integrator is Mitsuba's ``path``; its Mueller-matrix result is rotated
   into the sensor's Stokes frame exactly as Mitsuba's ``stokes`` integrator
   does (x axis = image horizontal), giving S0, S1, S2. One render serves every
@@ -141,7 +142,8 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
         spec = scene.lamp
         lamps = {"lamp": lamp.polarized_lamp(spec.position, intensity, spec.polarizer_axis, facing,
                                              extinction_ratio=spec.polarizer_extinction_ratio,
-                                             anisotropy_k=spec.anisotropy_k, anisotropy_axis=spec.anisotropy_axis)}
+                                             anisotropy_k=spec.anisotropy_k, anisotropy_axis=spec.anisotropy_axis,
+                                             radius=spec.radius)}
         integrator = {"type": "path", "max_depth": scene.capture.max_depth}
     else:
         if not scene.lamp_is_v1:
@@ -306,7 +308,8 @@ def render_key(scene: Scene) -> str:
     rendering); lamp nuisances at their off values are left out, so a scene without them keeps its v1 key."""
     doc = scene.model_dump(mode="json")
     default_lamp = LampSpec(position=scene.lamp.position).model_dump(mode="json")
-    doc["lamp"] = {k: v for k, v in doc["lamp"].items() if k in LAMP_V1_KEYS or v != default_lamp[k]}
+    doc["lamp"] = {k: v for k, v in doc["lamp"].items()
+                   if k in LAMP_V1_KEYS or (v != default_lamp[k] and not (k == "samples" and scene.lamp.radius == 0))}  # fmt: skip
     cap = doc["capture"]
     relevant = {
         "version": RENDER_VERSION,
@@ -507,6 +510,12 @@ def _load_scene(mi: ModuleType, scene: Scene, doc: dict) -> Any:
         raise UserError(f"{scene.source}: object.file: Mitsuba cannot load {scene.object.file}: {reason}") from None
 
 
+def traced_spp(scene: Scene) -> int:
+    """Samples traced per pixel: ``capture.spp``, times ``lamp.samples`` for a sphere lamp (``lamp.radius`` > 0)."""
+    spp = scene.capture.spp
+    return spp * scene.lamp.samples if scene.lamp.radius > 0 else spp
+
+
 def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
     """Run Mitsuba: ``P``, ``N``, ``to_world`` and Stokes ``[3, H, W, 3]`` per part."""
     from tqdm import tqdm
@@ -521,7 +530,7 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
         passes = [(p, None) for p in ("specular", "diffuse")]
     else:
         passes = [(p, c) for c in range(3) for p in (("specular", "diffuse", "full") if analytic else ("full",))]
-    spp = scene.capture.spp
+    spp = traced_spp(scene)
     _remove_stale_scratch()
     with tempfile.TemporaryDirectory(prefix=f"{SCRATCH_PREFIX}{os.getpid()}-") as scratch, tqdm(
         total=len(passes) * spp, desc=f"render ({len(passes)} passes)", unit="spp", disable=not progress, leave=False
@@ -567,7 +576,7 @@ def lamp_truth(scene: Scene) -> dict[str, Any]:
     return {
         "position": list(spec.position),
         "intensity": list(spec.intensity),
-        "radius_m": 0.0,
+        "radius_m": spec.radius,
         "anisotropy": None if spec.anisotropy_k == 0 else
         {"k": spec.anisotropy_k, "axis": (np.asarray(axis, float) / np.linalg.norm(axis)).tolist()},
         "polarizer_axis": filter_axes(spec.polarizer_axis, scene.lamp_facing)[0].tolist(),

@@ -238,7 +238,9 @@ class LampSpec(_Model):
 
     Nuisances of the lamp, rendered (each off by default): ``polarizer_extinction_ratio``
     (None: ideal), an intensity ``I(θ) = I0·cosᵏθ`` about ``anisotropy_axis``
-    (``anisotropy_k`` 0: isotropic; axis None: towards ``object.position``).
+    (``anisotropy_k`` 0: isotropic; axis None: towards ``object.position``), a
+    sphere of ``radius`` metres with the same intensity (0: a point), sampled
+    ``samples`` times per pixel sample (Monte Carlo; ignored for a point).
     """
 
     position: Vec3
@@ -247,6 +249,8 @@ class LampSpec(_Model):
     polarizer_extinction_ratio: ExtinctionRatio | None = None
     anisotropy_k: Annotated[float, Field(ge=0, le=1000)] = 0.0
     anisotropy_axis: Vec3 | None = None
+    radius: Annotated[float, Field(ge=0, le=0.5)] = 0.0
+    samples: Annotated[int, Field(ge=1, le=4096)] = 16
 
     @field_validator("polarizer_axis")
     @classmethod
@@ -387,7 +391,7 @@ class Scene(_Model):
     @property
     def lamp_is_v1(self) -> bool:
         """Whether the lamp is v1's: an ideal polarizer, isotropic (every lamp nuisance off)."""
-        return self.lamp.polarizer_extinction_ratio is None and self.lamp.anisotropy_k == 0
+        return self.lamp.polarizer_extinction_ratio is None and self.lamp.anisotropy_k == 0 and self.lamp.radius == 0
 
     def __eq__(self, other: object) -> bool:  # the source file name is not part of the scene
         return isinstance(other, Scene) and self.model_dump() == other.model_dump()

@@ -119,6 +119,8 @@ SCENE_BREAKS: dict[str, list[Any]] = {
     "lamp.polarizer_extinction_ratio": [0.9, -1, "ideal"],
     "lamp.anisotropy_k": [-1, "cos"],
     "lamp.anisotropy_axis": [[0, 0, 0], [1, 0]],
+    "lamp.radius": [-0.01, 1.0, "big"],
+    "lamp.samples": [0, 1.5, 1 << 20],
     "nuisances": ["bench", [1]],
     "nuisances.analyzer.extinction_ratio": [0.5, "high"],
     "nuisances.analyzer.offset_deg": [91, "x"],
