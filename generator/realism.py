@@ -32,7 +32,7 @@ PROFILES: dict[str, dict[str, Any]] = {
         "nuisances": {
             "analyzer": {"extinction_ratio": 300.0, "offset_deg": 0.5, "jitter_deg": 0.3},
             "camera": {"vignetting": 0.15, "flicker": 0.01, "white_balance": [1.05, 1.0, 0.95]},
-            "range": {"holes_shiny_above": 0.7, "holes_dark_below": 0.02, "shift_px": [0.3, 0.2], "quantum_m": 0.0005},
+            "range": {"holes_shiny_above": 0.9, "holes_dark_below": 0.02, "shift_px": [0.3, 0.2], "quantum_m": 0.0005},
             "calibration": {"position_m": [0.002, -0.001, 0.001], "rotation_deg": [0.2, -0.1, 0.1]},
         },
     },
@@ -41,7 +41,7 @@ PROFILES: dict[str, dict[str, Any]] = {
         "nuisances": {
             "analyzer": {"extinction_ratio": 100.0, "offset_deg": 2.0, "jitter_deg": 1.0},
             "camera": {"vignetting": 0.3, "gamma": 2.2, "flicker": 0.03, "white_balance": [1.2, 1.0, 0.85]},
-            "range": {"holes_shiny_above": 0.4, "holes_dark_below": 0.05, "shift_px": [0.7, -0.5], "quantum_m": 0.001},
+            "range": {"holes_shiny_above": 0.6, "holes_dark_below": 0.05, "shift_px": [0.7, -0.5], "quantum_m": 0.001},
             "calibration": {"position_m": [0.005, -0.003, 0.003], "rotation_deg": [0.5, -0.3, 0.3]},
         },
     },

@@ -567,6 +567,13 @@ def _check_geometry(mi: ModuleType, scene: Scene, geometry: Any, P: np.ndarray) 
         )
     if scene.object.type in CLOSED and lamp_inside(mi, geometry, scene.lamp.position):
         raise UserError(f"{scene.source}: lamp.position: {list(scene.lamp.position)} is inside the object")
+    if scene.lamp.radius > 0:
+        gap = float(np.nanmin(np.linalg.norm(P - np.asarray(scene.lamp.position), axis=-1)))
+        if gap <= scene.lamp.radius:
+            raise UserError(
+                f"{scene.source}: lamp.radius: {scene.lamp.radius} m reaches the object (a surface point the camera "
+                f"sees is {gap:.4g} m from the lamp's centre)"
+            )
 
 
 def lamp_truth(scene: Scene) -> dict[str, Any]:
