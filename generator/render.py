@@ -46,7 +46,7 @@ from ..errors import UserError
 from ..files.atomic import atomic_write
 from ..physics.polarization import analyzer_stack
 from .lamp import filter_axes
-from .scene import LAMP_V1_KEYS, LampSpec, MitsubaMaterial, Scene
+from .scene import LAMP_V1_KEYS, LampSpec, MitsubaMaterial, Scene, placement
 
 #: Bump when a change alters rendered values (invalidates caches).
 RENDER_VERSION = 1
@@ -100,7 +100,7 @@ def bsdf_dict(scene: Scene, *, part: str, channel: int | None) -> dict:
     unit = channel is None
     ks = 1.0 if unit else mat.specular[channel]
     kd = 1.0 if unit else mat.kd[channel]
-    return {
+    out = {
         "type": "nearlight_bsdf",
         "model": mat.model,
         "roughness": mat.roughness,
@@ -109,6 +109,12 @@ def bsdf_dict(scene: Scene, *, part: str, channel: int | None) -> dict:
         "polarization": mat.polarization,
         "eta": mat.eta,
     }
+    if mat.texture is not None:
+        frame = placement(scene.object)
+        out.update(texture_period=mat.texture.period_m, kd_contrast=mat.texture.kd_contrast,
+                   roughness_contrast=mat.texture.roughness_contrast, texture_origin=frame[:3, 3].tolist(),
+                   **{f"texture_{a}": frame[:3, i].tolist() for i, a in enumerate("xyz")})  # fmt: skip
+    return out
 
 
 def object_dicts(mi: ModuleType, scene: Scene, bsdf: dict, scratch: Path) -> dict[str, dict]:

@@ -159,10 +159,23 @@ class Mesh(_Placed):
 ObjectSpec = Annotated[Union[Board, Sphere, Cylinder, Bookend, Torus, Mesh], Field(discriminator="type")]
 
 
+class Texture(_Model):
+    """A checker in the object's placed frame (:mod:`nearlight.physics.texture`): albedo ``kd·(1 + kd_contrast·s)``
+    and roughness ``·(1 + roughness_contrast·s)``, ``s = ±1`` per cell of side ``period_m``."""
+
+    period_m: PositiveFloat = 0.02
+    kd_contrast: Annotated[float, Field(ge=0, lt=1)] = 0.0
+    roughness_contrast: Annotated[float, Field(ge=0, lt=1)] = 0.0
+
+
 class _Analytic(_Model):
     kd: RGB = (0.0, 0.0, 0.0)
     polarization: Literal["ideal", "fresnel"] = "ideal"
     eta: Annotated[float, Field(gt=1)] = 1.5
+    texture: Texture | None = None
+
+    def _texture_truth(self) -> dict[str, Any]:
+        return {} if self.texture is None else {"texture": {"pattern": "checker", **self.texture.model_dump()}}
 
 
 class TorranceSparrow(_Analytic):
@@ -182,7 +195,7 @@ class TorranceSparrow(_Analytic):
 
     def truth(self) -> dict[str, Any]:
         return {"model": self.model, "ks": list(self.ks), "sigma": self.sigma, "kd": list(self.kd),
-                "polarization": self.polarization, "eta": self.eta}  # fmt: skip
+                "polarization": self.polarization, "eta": self.eta, **self._texture_truth()}  # fmt: skip
 
 
 class Ward(_Analytic):
@@ -202,7 +215,7 @@ class Ward(_Analytic):
 
     def truth(self) -> dict[str, Any]:
         return {"model": self.model, "rho_s": list(self.rho_s), "alpha": self.alpha, "kd": list(self.kd),
-                "polarization": self.polarization, "eta": self.eta}  # fmt: skip
+                "polarization": self.polarization, "eta": self.eta, **self._texture_truth()}  # fmt: skip
 
 
 class MitsubaMaterial(_Model):

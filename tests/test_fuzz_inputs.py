@@ -120,6 +120,7 @@ SCENE_BREAKS: dict[str, list[Any]] = {
     "lamp.anisotropy_k": [-1, "cos"],
     "lamp.anisotropy_axis": [[0, 0, 0], [1, 0]],
     "lamp.radius": [-0.01, 1.0, "big"],
+    "material.texture": ["checker", {"kd_contrast": 1.0}, {"period_m": 0}, {"roughness_contrast": -0.1}, {"bogus": 1}],
     "lamp.samples": [0, 1.5, 1 << 20],
     "nuisances": ["bench", [1]],
     "nuisances.analyzer.extinction_ratio": [0.5, "high"],
