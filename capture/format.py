@@ -416,7 +416,9 @@ def _rig(x: Any, where: Path) -> Rig:
         raise UserError(f"{where}: rig.lamps: expected a positive integer, got {lamps!r}")
     return Rig(
         lamps=lamps,
-        analyzer_extinction_ratio=_ratio(other.pop("analyzer_extinction_ratio", None), where, "rig.analyzer_extinction_ratio"),
+        analyzer_extinction_ratio=_ratio(
+            other.pop("analyzer_extinction_ratio", None), where, "rig.analyzer_extinction_ratio"
+        ),
         lamp_polarizer_extinction_ratio=_ratio(
             other.pop("lamp_polarizer_extinction_ratio", None), where, "rig.lamp_polarizer_extinction_ratio"
         ),

@@ -114,7 +114,8 @@ def register(mi: ModuleType) -> None:
             ds.p = it.p + t * direction
             ds.dist = t
             ds.d = direction
-            # L·Ω / ... = (I / πa²) · 2π (1 − cos θmax), with 1 − cos θmax = (a/dc)² / (1 + cos θmax): no cancellation
+            # L·Ω = I/(π a²) · 2π (1 − cos θmax) = I · 2 / (dc² (1 + cos θmax)),
+            # by 1 − cos θmax = (a/dc)² / (1 + cos θmax): no cancellation for a small lamp (the caller applies I)
             return ds, dr.select(dc > a, 2.0 / (dr.square(dc) * (1.0 + cos_max)), 0.0)
 
         def pdf_direction(self, it, ds, active=True):

@@ -77,8 +77,15 @@ def nuisances_of(scene: Scene | Mapping[str, Any]) -> tuple[str, Nuisances]:
     return str(doc.get("realism", "none")), Nuisances.model_validate(doc.get("nuisances") or {})
 
 
-def observe(clean: Capture, *, nuisances: Nuisances | None = None, realism: str = "none",
-            noise: CameraNoise | Mapping[str, Any] | None = None, range_noise: float = 0.0, seed: int = 0) -> Capture:  # fmt: skip
+def observe(
+    clean: Capture,
+    *,
+    nuisances: Nuisances | None = None,
+    realism: str = "none",
+    noise: CameraNoise | Mapping[str, Any] | None = None,
+    range_noise: float = 0.0,
+    seed: int = 0,
+) -> Capture:
     """The capture a rig records from the clean render ``clean`` (see the module docstring for the order).
 
     Parameters

@@ -314,8 +314,8 @@ def render_key(scene: Scene) -> str:
     rendering); lamp nuisances at their off values are left out, so a scene without them keeps its v1 key."""
     doc = scene.model_dump(mode="json")
     default_lamp = LampSpec(position=scene.lamp.position).model_dump(mode="json")
-    doc["lamp"] = {k: v for k, v in doc["lamp"].items()
-                   if k in LAMP_V1_KEYS or (v != default_lamp[k] and not (k == "samples" and scene.lamp.radius == 0))}  # fmt: skip
+    unused = {"samples"} if scene.lamp.radius == 0 else set()  # a point lamp is not sampled
+    doc["lamp"] = {k: v for k, v in doc["lamp"].items() if k in LAMP_V1_KEYS or (v != default_lamp[k] and k not in unused)}
     cap = doc["capture"]
     relevant = {
         "version": RENDER_VERSION,

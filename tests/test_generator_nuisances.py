@@ -76,8 +76,8 @@ def test_render_key_changes_with_lamp_nuisances_only():
     base = load_scene(SCENES / "ts_board.yaml", overrides=SMALL)
     key = render_key(base)
     # post-render nuisances: one render serves them all
-    assert render_key(load_scene(SCENES / "ts_board.yaml", overrides={**SMALL, "realism": "rough",
-                                 "lamp.polarizer_extinction_ratio": None, "lamp.anisotropy_k": 0, "lamp.radius": 0})) == key  # fmt: skip
+    lamp_off = {"lamp.polarizer_extinction_ratio": None, "lamp.anisotropy_k": 0, "lamp.radius": 0}
+    assert render_key(load_scene(SCENES / "ts_board.yaml", overrides={**SMALL, "realism": "rough", **lamp_off})) == key
     assert render_key(load_scene(SCENES / "ts_board.yaml", overrides={**SMALL, "lamp.anisotropy_k": 2})) != key
     assert render_key(load_scene(SCENES / "ts_board.yaml",
                                  overrides={**SMALL, "lamp.polarizer_extinction_ratio": 300})) != key  # fmt: skip
@@ -314,7 +314,8 @@ def test_misregistration_moves_P_by_the_requested_sub_pixel_amount(shift):
     np.testing.assert_allclose(col[ok] - cols[ok], shift[0], atol=0.01)
     np.testing.assert_allclose(row[ok] - rows[ok], shift[1], atol=0.01)
     if all(float(s).is_integer() for s in shift):  # whole pixels move exactly
-        np.testing.assert_array_equal(bilinear_shift(clean.P, *shift)[ok], np.roll(clean.P, (-int(shift[1]), -int(shift[0])), (0, 1))[ok])
+        rolled = np.roll(clean.P, (-int(shift[1]), -int(shift[0])), (0, 1))
+        np.testing.assert_array_equal(bilinear_shift(clean.P, *shift)[ok], rolled[ok])
 
 
 def test_depth_quantisation_keeps_points_on_their_rays():
@@ -381,8 +382,8 @@ def test_render_and_a_sweep_task_with_the_same_seed_see_the_same_nuisances(tmp_p
     from nearlight.generator import pipeline
 
     clean = analytic_capture(width=64, height=48, analyzer_angles_deg=np.arange(8) * 22.5)
-    scene = load_scene(SCENES / "ts_board.yaml", overrides={**SMALL, "realism": "rough", "capture.seed": 3,
-                                                             "capture.noise": NOISE, "capture.range_noise_m": 0.001})  # fmt: skip
+    scene = load_scene(SCENES / "ts_board.yaml", overrides={
+        **SMALL, "realism": "rough", "capture.seed": 3, "capture.noise": NOISE, "capture.range_noise_m": 0.001})
     monkeypatch.setattr(pipeline, "render_clean", lambda *a, **k: clean)
     rendered = read_capture(pipeline.render_capture(scene, tmp_path / "cap", progress=False))
     task = {"scene": scene.model_dump(mode="json"), "noise": NOISE, "range_noise": 0.001, "seed": 3}
