@@ -79,7 +79,6 @@ def register(mi: ModuleType) -> None:
             d = ds.p - it.p
             ds.dist = dr.norm(d)
             ds.d = d / ds.dist
-            scale = dr.rcp(dr.square(ds.dist))
             if self.radius > 0:
                 ds, scale = self._sample_sphere(it, sample, ds, d)
             forward = -ds.d  # propagation direction of the emitted light
@@ -91,7 +90,10 @@ def register(mi: ModuleType) -> None:
             else:
                 filt = mi.mueller.linear_polarizer(1.0)
             pol = mi.mueller.rotate_mueller_basis_collinear(filt, forward, transmit, mi.mueller.stokes_basis(forward))
-            value = dr.select(active, self.intensity * scale, 0.0)
+            if self.radius > 0:
+                value = dr.select(active, self.intensity * scale, 0.0)
+            else:  # the point lamp, written as before the sphere existed (same rounding, bit for bit)
+                value = dr.select(active, self.intensity / dr.square(ds.dist), 0.0)
             if self.k > 0:
                 value *= dr.power(dr.maximum(dr.dot(forward, mi.Vector3f(self.beam)), 0.0), self.k)
             return ds, mi.Spectrum(pol) * mi.depolarizer(mi.UnpolarizedSpectrum(value))

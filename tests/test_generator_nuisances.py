@@ -94,6 +94,75 @@ def test_the_nuisance_stream_leaves_camera_and_range_noise_streams_alone():
     assert not np.array_equal(nuisance_rng(7).standard_normal(5), noise_rngs(7)[0].standard_normal(5))
 
 
+V1_LAMP = "nearlight_lamp_v1_frozen"
+
+
+def _register_v1_lamp(mi) -> None:
+    """The point lamp's emitter exactly as it was before lamp nuisances existed (commit 67bf000), frozen here so the
+    off path of today's emitter can be held to it bit for bit on this machine (a render's last bits depend on the CPU,
+    so a stored golden image could not be compared across machines)."""
+    import drjit as dr
+
+    from nearlight.generator.bsdfs import zero_struct
+    from nearlight.generator.lamp import filter_axes
+
+    class FrozenV1Lamp(mi.Emitter):
+        def __init__(self, props):
+            super().__init__(props)
+            self.position = mi.ScalarPoint3f(props.get("position"))
+            self.intensity = float(props.get("intensity", 1.0))
+            self.absorb = mi.ScalarVector3f(filter_axes(props.get("axis"), props.get("facing"))[1])
+            self.m_flags = mi.EmitterFlags.DeltaPosition
+
+        def sample_direction(self, it, sample, active=True):
+            ds = zero_struct(mi, mi.DirectionSample3f)
+            ds.p, ds.time, ds.pdf, ds.delta = mi.Point3f(self.position), it.time, 1.0, True
+            d = ds.p - it.p
+            ds.dist = dr.norm(d)
+            ds.d = d / ds.dist
+            fwd = -ds.d
+            absorb = mi.Vector3f(self.absorb)
+            transmit = dr.cross(fwd, dr.normalize(absorb - dr.dot(absorb, fwd) * fwd))
+            pol = mi.mueller.rotate_mueller_basis_collinear(mi.mueller.linear_polarizer(1.0), fwd, transmit,
+                                                            mi.mueller.stokes_basis(fwd))  # fmt: skip
+            value = dr.select(active, self.intensity / dr.square(ds.dist), 0.0)
+            return ds, mi.Spectrum(pol) * mi.depolarizer(mi.UnpolarizedSpectrum(value))
+
+        def pdf_direction(self, it, ds, active=True):
+            return mi.Float(0.0)
+
+        def eval_direction(self, it, ds, active=True):
+            return dr.zeros(mi.Spectrum)
+
+        def eval(self, si, active=True):
+            return dr.zeros(mi.Spectrum)
+
+    mi.register_emitter(V1_LAMP, lambda props: FrozenV1Lamp(props))
+
+
+@pytest.mark.render
+@pytest.mark.parametrize("channel", [None, 0])
+def test_the_lamp_with_every_nuisance_off_renders_bit_for_bit_as_before(channel):
+    # The linear path (unit intensity) and the per-channel path (intensity 2, inter-reflection, 2 spp) of the bookend.
+    import tempfile
+    from pathlib import Path
+
+    from nearlight.generator import render
+    from nearlight.generator.llvm import mitsuba
+
+    mi = mitsuba()
+    _register_v1_lamp(mi)
+    scene = load_scene(SCENES / "bookend.yaml", overrides={"camera.resolution": [48, 36], "capture.max_depth": 3})
+    with tempfile.TemporaryDirectory() as scratch:
+        d = render.scene_dict(mi, scene, part="full", channel=channel, scratch=Path(scratch))
+        now = render.trace_stokes(mi, mi.load_dict(d), spp=2)
+        assert d["lamp"]["type"] == "nearlight_lamp" and set(d["lamp"]) == {"type", "position", "intensity", "axis",
+                                                                             "facing"}  # fmt: skip
+        before = render.trace_stokes(mi, mi.load_dict({**d, "lamp": {**d["lamp"], "type": V1_LAMP}}), spp=2)
+    assert now.max() > 0
+    np.testing.assert_array_equal(now, before)
+
+
 # --------------------------------------------------------------------------- analyzer
 
 
