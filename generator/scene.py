@@ -1,10 +1,11 @@
 """Scene files: what to render, validated (pydantic v2), with ``--set`` overrides.
 
 A scene has five sections: ``camera``, ``object``, ``material``, ``lamp`` and
-``capture``, and the optional rig imperfections: ``nuisances`` (applied after
-rendering, per seed) and ``realism`` (a named profile of nuisance values,
-:mod:`nearlight.generator.realism`), each off by default. Positions are in metres, angles in degrees (the file is what a
-human types); colours are ``[r, g, b]``. ``Scene.model_dump(mode="json")``
+``capture``, and two optional keys for rig imperfections, off by default:
+``nuisances`` (applied after rendering, per seed) and ``realism`` (a named
+profile of nuisance values, :mod:`nearlight.generator.realism`). Positions are
+in metres, angles in degrees (the file is what a human types); colours are
+``[r, g, b]``. ``Scene.model_dump(mode="json")``
 loads back to the same scene. Every key is specified in ``docs/scene-files.md``.
 """
 
