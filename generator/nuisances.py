@@ -77,6 +77,15 @@ def nuisances_of(scene: Scene | Mapping[str, Any]) -> tuple[str, Nuisances]:
     return str(doc.get("realism", "none")), Nuisances.model_validate(doc.get("nuisances") or {})
 
 
+def draws_from_seed(nuisances: Nuisances) -> bool:
+    """Whether a capture with these nuisances changes with the seed (analyzer jitter or lamp flicker is on).
+
+    A sweep runs every seed of a configuration only when something in it is
+    random: camera or range noise, or this.
+    """
+    return nuisances.analyzer.jitter_deg > 0 or nuisances.camera.flicker > 0
+
+
 def observe(
     clean: Capture,
     *,

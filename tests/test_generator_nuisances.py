@@ -85,6 +85,19 @@ def test_render_key_changes_with_lamp_nuisances_only():
     assert render_key(load_scene(SCENES / "ts_board.yaml", overrides={**SMALL, "lamp.samples": 64})) == key  # a point
 
 
+def test_which_nuisances_draw_from_the_seed():
+    from nearlight.generator.nuisances import draws_from_seed
+
+    assert not draws_from_seed(Nuisances())
+    assert draws_from_seed(_nz(analyzer={"jitter_deg": 0.1})) and draws_from_seed(_nz(camera={"flicker": 0.01}))
+    still = {"realism": "bench", "nuisances.analyzer.jitter_deg": 0, "nuisances.camera.flicker": 0}
+    assert not draws_from_seed(load_scene(SCENES / "ts_board.yaml", overrides=still).nuisances)
+    clean = analytic_capture(width=16, height=12)
+    for nz in (_nz(analyzer={"extinction_ratio": 50, "offset_deg": 1}), _nz(range={"shift_px": [0.5, 0]})):
+        assert not draws_from_seed(nz)
+        np.testing.assert_array_equal(observe(clean, nuisances=nz, seed=1).stack, observe(clean, nuisances=nz, seed=2).stack)
+
+
 def test_the_nuisance_stream_leaves_camera_and_range_noise_streams_alone():
     # SeedSequence children are keyed by their index: spawn(3)'s first two are spawn(2)'s.
     cam, rng_ = noise_rngs(7)
