@@ -9,7 +9,10 @@ child 0 draws the camera noise, child 1 the range noise. Both
 pick their own child, so every verb follows one rule: ``nearlight render``
 passes the scene's ``capture.seed``, a sweep task its ``seed``, ``nearlight
 reproduce`` seed 0. ``nearlight render SCENE --set capture.seed=3`` and a sweep
-task with seed 3 on the same scene therefore see the same noisy images.
+task with seed 3 on the same scene therefore see the same noisy images. The
+per-shot rig nuisances (analyzer jitter, lamp flicker) draw from child 2
+(:func:`nearlight.generator.nuisances.nuisance_rng`); children are keyed by
+their index, so children 0 and 1 are the same whether 2 or 3 are spawned.
 
 Camera noise
 ------------
