@@ -23,7 +23,7 @@ PROFILES: dict[str, dict[str, Any]] = {
         "nuisances": {
             "analyzer": {"extinction_ratio": 1000.0, "offset_deg": 0.1, "jitter_deg": 0.05},
             "camera": {"vignetting": 0.05, "flicker": 0.002},
-            "range": {"shift_px": [0.1, 0.0], "quantum_m": 0.0001},
+            "range": {"shift_px": [0.1, 0.0], "quantum_m": 0.00005},
             "calibration": {"position_m": [0.0005, 0.0, 0.0], "rotation_deg": [0.05, 0.0, 0.0]},
         },
     },
@@ -32,7 +32,7 @@ PROFILES: dict[str, dict[str, Any]] = {
         "nuisances": {
             "analyzer": {"extinction_ratio": 300.0, "offset_deg": 0.5, "jitter_deg": 0.3},
             "camera": {"vignetting": 0.15, "flicker": 0.01, "white_balance": [1.05, 1.0, 0.95]},
-            "range": {"holes_shiny_above": 0.9, "holes_dark_below": 0.02, "shift_px": [0.3, 0.2], "quantum_m": 0.0005},
+            "range": {"holes_shiny_above": 0.9, "holes_dark_below": 0.02, "shift_px": [0.3, 0.2], "quantum_m": 0.0002},
             "calibration": {"position_m": [0.002, -0.001, 0.001], "rotation_deg": [0.2, -0.1, 0.1]},
         },
     },
