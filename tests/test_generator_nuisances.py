@@ -453,7 +453,7 @@ def test_a_bench_capture_records_every_nuisance_and_still_estimates(tmp_path):
     assert cap.truth["camera"]["position"] == list(scene.camera.position)
     assert cap.rig.analyzer_extinction_ratio == 300 and cap.rig.lamp_polarizer_extinction_ratio == 300
     assert (~cap.surface_mask & (cap.extra["mask"] > 0)).any()  # holes on the highlight
-    est = estimate(cap.replace(truth=None), method="paper-init")  # the estimator never needs truth
+    est = estimate(cap.replace(truth=None), method="full")  # the estimator never needs truth
     assert np.all(np.isfinite(est.lamp_position))
 
 
