@@ -1,10 +1,11 @@
-"""Capture format v1: the one module that reads and writes captures.
+"""Capture format (v1 and v2): the one module that reads and writes captures.
 
 A capture is a directory holding ``capture.json`` (camera, analyzer angles,
 optional ground truth) and ``capture.exr`` (analyzer stack or separated
 specular image, range image ``P``, optional normals ``N``, extras). The format
 is specified in ``docs/capture-format.md``; this module is its reference
-implementation. The generator writes captures with :func:`write_capture`, the
+implementation. It reads ``nearlight-capture/1`` and ``nearlight-capture/2``
+(v1 keeps its meaning) and writes v2. The generator writes captures with :func:`write_capture`, the
 estimator reads them with :func:`read_capture`, and so does anything reading a
 real rig's captures.
 
@@ -31,7 +32,12 @@ import numpy as np
 from ..errors import UserError
 from ..files.jsonable import jsonable
 
-FORMAT = "nearlight-capture/1"
+#: The version the writer writes.
+FORMAT = "nearlight-capture/2"
+#: The version every v1 capture carries (read with its v1 meaning).
+FORMAT_V1 = "nearlight-capture/1"
+#: Every version the reader reads.
+FORMATS = (FORMAT_V1, FORMAT)
 JSON_NAME = "capture.json"
 EXR_NAME = "capture.exr"
 
@@ -63,6 +69,31 @@ class Camera:
     fov_x_deg: float | None = None
 
 
+@dataclasses.dataclass(frozen=True)
+class Rig:
+    """What a rig knows about itself by calibration (``capture.json``'s ``rig``, v2); estimators may use it.
+
+    The defaults are v1's ideal rig.
+
+    Attributes
+    ----------
+    lamps : int
+        Number of lamps lit in the capture.
+    analyzer_extinction_ratio : float or None
+        Extinction ratio ε ≥ 1 of the camera's analyzer (``k1/k2`` of its
+        principal intensity transmittances, ``k1 = 1``); None: ideal.
+    lamp_polarizer_extinction_ratio : float or None
+        The same for the lamp's polarizer; None: ideal.
+    other : dict
+        Every other key of ``rig`` (kept on a round trip).
+    """
+
+    lamps: int = 1
+    analyzer_extinction_ratio: float | None = None
+    lamp_polarizer_extinction_ratio: float | None = None
+    other: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class Capture:
     """One capture: what a polarization rig with a range finder records.
@@ -88,8 +119,12 @@ class Capture:
     lamp_polarizer_axis : ndarray, shape (3,) or None
         World-space axis of the lamp's linear polarizer.
     truth : dict or None
-        Ground truth (lamp position, intensity, BSDF). Estimators must never
-        read it; it is here for the evaluation.
+        Ground truth (lamp position, intensity, BSDF; in v2 also ``lamps``,
+        ``camera``, ``nuisances``). Estimators must never read it; it is here
+        for the evaluation.
+    rig : Rig
+        What the rig knows about itself by calibration (v2); estimators may
+        read it. ``Rig()`` (ideal) for v1 captures.
     extra : dict of str to ndarray
         Every other EXR layer: ``[H, W, 3]`` for three-channel layers
         (``truth_specular``, ``S0``...), ``[H, W]`` for single channels
@@ -111,6 +146,7 @@ class Capture:
     diffuse: np.ndarray | None = None
     lamp_polarizer_axis: np.ndarray | None = None
     truth: dict | None = None
+    rig: Rig = dataclasses.field(default_factory=Rig)
     extra: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
     meta: dict[str, Any] = dataclasses.field(default_factory=dict)
     source: Path | None = None
@@ -149,7 +185,7 @@ def read_capture(path: str | os.PathLike) -> Capture:
     ------
     UserError
         With a one-line message naming the file, key or channel, when the
-        capture is not valid format v1.
+        capture is not valid format v1 or v2.
     """
     path = Path(path)
     folder = path.parent if path.name == JSON_NAME else path
@@ -162,9 +198,11 @@ def read_capture(path: str | os.PathLike) -> Capture:
         doc = json.loads(json_path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise UserError(f"{json_path}: not valid JSON ({exc})") from None
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+    if not isinstance(doc, dict) or doc.get("format") not in FORMATS:
         got = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
-        raise UserError(f"{json_path}: format: expected {FORMAT!r}, got {got!r}")
+        want = " or ".join(repr(f) for f in FORMATS)
+        raise UserError(f"{json_path}: format: expected {want}, got {got!r}")
+    v2 = doc["format"] == FORMAT
     meta = dict(doc)
 
     def take(key: str, required: bool = False) -> Any:
@@ -195,6 +233,10 @@ def read_capture(path: str | os.PathLike) -> Capture:
     axis = take("lamp_polarizer_axis")
     axis = None if axis is None else _vector(axis, json_path, "lamp_polarizer_axis", (3,))
     truth = take("truth")
+    rig = Rig()
+    if v2:
+        rig = _rig(take("rig"), json_path)
+        _check_truth_v2(truth, json_path)
 
     if not exr_path.is_file():
         raise UserError(f"{exr_path}: missing (a capture directory holds {JSON_NAME} and {EXR_NAME})")
@@ -267,6 +309,7 @@ def read_capture(path: str | os.PathLike) -> Capture:
         diffuse=diffuse,
         lamp_polarizer_axis=axis,
         truth=truth,
+        rig=rig,
         extra=extra,
         meta=meta,
         source=folder,
@@ -350,6 +393,85 @@ def _quiet_fds() -> Iterator[list[str]]:
                 os.close(fd)
             sink.seek(0)
             lines.extend(sink.read(1 << 16).decode("utf-8", errors="replace").splitlines())
+
+
+def _ratio(x: Any, where: Path, key: str) -> float | None:
+    """An extinction ratio: a number >= 1, or None (ideal)."""
+    if x is None:
+        return None
+    if not (_is_number(x) and x >= 1):
+        raise UserError(f"{where}: {key}: expected a number >= 1 or null, got {x!r}")
+    return float(x)
+
+
+def _rig(x: Any, where: Path) -> Rig:
+    """``rig`` of a v2 ``capture.json`` (absent: the ideal rig)."""
+    if x is None:
+        return Rig()
+    if not isinstance(x, dict):
+        raise UserError(f"{where}: rig: expected an object, got {x!r}")
+    other = dict(x)
+    lamps = other.pop("lamps", 1)
+    if not (isinstance(lamps, int) and not isinstance(lamps, bool) and lamps > 0):
+        raise UserError(f"{where}: rig.lamps: expected a positive integer, got {lamps!r}")
+    return Rig(
+        lamps=lamps,
+        analyzer_extinction_ratio=_ratio(
+            other.pop("analyzer_extinction_ratio", None), where, "rig.analyzer_extinction_ratio"
+        ),
+        lamp_polarizer_extinction_ratio=_ratio(
+            other.pop("lamp_polarizer_extinction_ratio", None), where, "rig.lamp_polarizer_extinction_ratio"
+        ),
+        other=other,
+    )
+
+
+def _check_truth_v2(truth: Any, where: Path) -> None:
+    """Check the v2 keys of ``truth`` (``lamps``, ``camera``, ``nuisances``); v1's keys keep v1's (no) checks."""
+    if truth is None:
+        return
+    if not isinstance(truth, dict):
+        raise UserError(f"{where}: truth: expected an object, got {type(truth).__name__}")
+    lamps = truth.get("lamps")
+    if lamps is not None:
+        if not isinstance(lamps, list) or not lamps:
+            raise UserError(f"{where}: truth.lamps: expected a non-empty list of lamps, got {lamps!r}")
+        for i, lamp in enumerate(lamps):
+            key = f"truth.lamps[{i}]"
+            if not isinstance(lamp, dict):
+                raise UserError(f"{where}: {key}: expected an object, got {lamp!r}")
+            _vector(lamp.get("position"), where, f"{key}.position", (3,))
+            for name in ("intensity", "polarizer_axis"):
+                if lamp.get(name) is not None:
+                    _vector(lamp[name], where, f"{key}.{name}", (3,))
+            if lamp.get("intensity") is not None and min(lamp["intensity"]) < 0:
+                raise UserError(f"{where}: {key}.intensity: expected 3 numbers >= 0, got {lamp['intensity']!r}")
+            radius = lamp.get("radius_m", 0.0)
+            if not (_is_number(radius) and radius >= 0):
+                raise UserError(f"{where}: {key}.radius_m: expected a number >= 0, got {radius!r}")
+            _ratio(lamp.get("polarizer_extinction_ratio"), where, f"{key}.polarizer_extinction_ratio")
+            aniso = lamp.get("anisotropy")
+            if aniso is not None:
+                if not isinstance(aniso, dict):
+                    raise UserError(f"{where}: {key}.anisotropy: expected null or an object {{k, axis}}, got {aniso!r}")
+                if not (_is_number(aniso.get("k")) and aniso["k"] >= 0):
+                    raise UserError(f"{where}: {key}.anisotropy.k: expected a number >= 0, got {aniso.get('k')!r}")
+                axis = _vector(aniso.get("axis"), where, f"{key}.anisotropy.axis", (3,))
+                if not np.linalg.norm(axis) > 0:
+                    raise UserError(f"{where}: {key}.anisotropy.axis: expected a non-zero vector, got {aniso['axis']!r}")
+    cam = truth.get("camera")
+    if cam is not None:
+        if not isinstance(cam, dict):
+            raise UserError(f"{where}: truth.camera: expected an object, got {cam!r}")
+        _vector(cam.get("position"), where, "truth.camera.position", (3,))
+        if cam.get("to_world") is not None:
+            _vector(cam["to_world"], where, "truth.camera.to_world", (4, 4))
+        fov = cam.get("fov_x_deg")
+        if fov is not None and not (_is_number(fov) and 0 < fov < 180):
+            raise UserError(f"{where}: truth.camera.fov_x_deg: expected a number in (0, 180), got {fov!r}")
+    nuisances = truth.get("nuisances")
+    if nuisances is not None and not isinstance(nuisances, dict):
+        raise UserError(f"{where}: truth.nuisances: expected an object, got {nuisances!r}")
 
 
 def _is_number(x: Any) -> bool:
@@ -474,6 +596,13 @@ def capture_json(capture: Capture) -> dict[str, Any]:
         doc["analyzer_angles_deg"] = _list(capture.analyzer_angles_deg)
     if capture.lamp_polarizer_axis is not None:
         doc["lamp_polarizer_axis"] = _list(capture.lamp_polarizer_axis)
+    rig = capture.rig
+    doc["rig"] = {"lamps": int(rig.lamps)}
+    for key in ("analyzer_extinction_ratio", "lamp_polarizer_extinction_ratio"):
+        if getattr(rig, key) is not None:
+            doc["rig"][key] = float(getattr(rig, key))
+    for key, value in rig.other.items():
+        doc["rig"].setdefault(key, jsonable(value))
     if capture.truth is not None:
         doc["truth"] = jsonable(capture.truth)
     for key, value in capture.meta.items():

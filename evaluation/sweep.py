@@ -127,11 +127,9 @@ class Task:
     range_noise: float
     seed: int
     method: Method
-
-    @property
-    def noisy(self) -> bool:
-        """Whether the task's numbers depend on its seed (camera or range noise)."""
-        return self.noise is not None or self.range_noise > 0
+    #: Whether the task's numbers depend on its seed: camera or range noise, or a
+    #: per-shot rig nuisance (analyzer jitter, lamp flicker; :func:`seed_matters`).
+    noisy: bool
 
 
 @dataclasses.dataclass(frozen=True)
@@ -218,7 +216,7 @@ def load_sweep(
 
     axes = {name: _axis_values(path, name, values) for name, values in axis_values.items()}
     for name, values in axes.items():
-        if name not in AXES and "." not in name:
+        if name not in AXES and "." not in name and name != "realism":
             raise UserError(
                 f"{path}: axes.{name}: unknown axis (expected one of {', '.join(AXES)} or a dotted scene key)"
             )
@@ -244,10 +242,11 @@ def load_sweep(
         config = {n: _column_value(label) for n, (label, _) in chosen.items()}
         noise = chosen["noise"][1] if "noise" in chosen else None
         range_noise = float(chosen["range_noise"][1]) if "range_noise" in chosen else 0.0
-        for seed in seeds if (noise is not None or range_noise > 0) else seeds[:1]:
+        noisy = seed_matters(renderer, scene, noise, range_noise)
+        for seed in seeds if noisy else seeds[:1]:
             for m in methods:
                 tid = _hash([spec.renderer, scene, noise, range_noise, seed, m.label, m.method, m.options])
-                tasks.append(Task(len(tasks), tid, config, scene, key, noise, range_noise, seed, m))
+                tasks.append(Task(len(tasks), tid, config, scene, key, noise, range_noise, seed, m, noisy))
     return Sweep(spec.name, path, renderer, axes, seeds, methods, tasks, spec.crlb, profile)
 
 
@@ -332,13 +331,25 @@ def _check_axis_value(path: str, name: str, label: Any, value: Any) -> None:
         raise UserError(f"{where} expected 'torrance_sparrow', 'ward' or a material mapping")
 
 
+def seed_matters(renderer: Renderer, scene: dict, noise: Any, range_noise: float) -> bool:
+    """Whether a configuration's captures change with the seed: camera or range noise, or (generator
+    scenes) a per-shot rig nuisance of the scene or its ``realism`` profile (analyzer jitter, lamp flicker)."""
+    if noise is not None or range_noise > 0:
+        return True
+    if renderer.name != "mitsuba":
+        return False
+    from ..generator.nuisances import draws_from_seed, nuisances_of
+
+    return draws_from_seed(nuisances_of(scene)[1])
+
+
 def _physical_scene(renderer: Renderer, base: dict, chosen: dict[str, tuple[Any, Any]], path: str) -> dict:
     scene = copy.deepcopy(base)
     for name in _APPLY_ORDER:
         if name in chosen:
             renderer.apply_axis(scene, name, chosen[name][1], where=f"{path}: axes.{name}")
     for name, (_, value) in chosen.items():
-        if "." in name:
+        if "." in name or name == "realism":
             set_dotted(scene, name, copy.deepcopy(value), where=f"{path}: axes.{name}")
     if "lamp_distance" in chosen:
         renderer.apply_axis(scene, "lamp_distance", chosen["lamp_distance"][1], where=f"{path}: axes.lamp_distance")

@@ -30,18 +30,13 @@ def run_method(capture: Any, method: str, options: Mapping[str, Any]) -> Any:
 
 
 def noisy_capture(clean: Any, task: Mapping[str, Any]) -> Any:
-    """The capture the estimator sees: camera noise, then range noise, both given the task's seed
-    (the one seed rule of :mod:`nearlight.generator.noise`, as ``nearlight render`` with ``capture.seed``)."""
-    capture = clean
-    if task["noise"] is not None:
-        from ..generator import add_camera_noise
+    """The capture the estimator sees: the scene's nuisances, camera noise and range noise, all given the task's
+    seed (:func:`nearlight.generator.nuisances.observe`, as ``nearlight render`` with ``capture.seed``)."""
+    from ..generator.nuisances import nuisances_of, observe
 
-        capture = add_camera_noise(capture, noise=task["noise"], seed=task["seed"])
-    if task["range_noise"] > 0:
-        from ..generator import add_range_noise
-
-        capture = add_range_noise(capture, sigma_m=task["range_noise"], seed=task["seed"])
-    return capture
+    realism, nuisances = nuisances_of(task.get("scene") or {})
+    return observe(clean, nuisances=None if nuisances.off and realism == "none" else nuisances, realism=realism,
+                   noise=task["noise"], range_noise=task["range_noise"], seed=task["seed"])  # fmt: skip
 
 
 def _crlb(clean: Any, task: Mapping[str, Any]) -> dict[str, float]:

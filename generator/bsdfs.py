@@ -64,6 +64,13 @@ def register(mi: ModuleType) -> None:
             self.rough = float(props.get("roughness", 0.1))
             self.kd = float(props.get("kd", 0.0))
             self.eta = float(props.get("eta", 1.5))
+            # The checker texture of nearlight.physics.texture (its numpy twin; a test holds them together).
+            self.period = float(props.get("texture_period", 0.0))  # 0: untextured
+            if self.period > 0:
+                self.kd_contrast = float(props.get("kd_contrast", 0.0))
+                self.rough_contrast = float(props.get("roughness_contrast", 0.0))
+                self.tex_origin = mi.ScalarPoint3f(props.get("texture_origin"))
+                self.tex_axes = [mi.ScalarVector3f(props.get(f"texture_{a}")) for a in "xyz"]
             flags = mi.BSDFFlags.FrontSide
             if self.ks > 0:
                 flags |= mi.BSDFFlags.GlossyReflection
@@ -92,20 +99,30 @@ def register(mi: ModuleType) -> None:
                 wi_hat, s_out, mi.mueller.stokes_basis(wi_hat),
             )  # fmt: skip
 
+        def _sign(self, p):
+            """The checker's sign (±1) at world point ``p``."""
+            q = p - mi.Point3f(self.tex_origin)
+            k = sum(dr.floor(dr.dot(q, mi.Vector3f(a)) / self.period + 0.25) for a in self.tex_axes)
+            return 1.0 - 2.0 * (k - 2.0 * dr.floor(k / 2.0))
+
         def eval(self, ctx, si, wo, active=True):
             cos_i = mi.Frame3f.cos_theta(wo)
             cos_r = mi.Frame3f.cos_theta(si.wi)
             active = active & (cos_i > 0.0) & (cos_r > 0.0)
             value = dr.zeros(mi.Spectrum)
+            kd, rough = self.kd, self.rough
+            if self.period > 0:
+                s = self._sign(si.p)
+                kd, rough = kd * (1.0 + self.kd_contrast * s), rough * (1.0 + self.rough_contrast * s)
             if self.ks > 0:
                 h = dr.normalize(wo + si.wi)
-                lobe = specular_lobe(self.model, self.rough, self.ks, cos_i, cos_r, h.z)
+                lobe = specular_lobe(self.model, rough, self.ks, cos_i, cos_r, h.z)
                 radiance = ctx.mode == mi.TransportMode.Radiance
                 wo_hat = wo if radiance else si.wi
                 wi_hat = si.wi if radiance else wo
                 value += mi.Spectrum(self._mueller(wo_hat, wi_hat, h) * dr.select(active, lobe, 0.0))
             if self.kd > 0:
-                value += mi.depolarizer(mi.UnpolarizedSpectrum(dr.select(active, self.kd / math.pi * cos_i, 0.0)))
+                value += mi.depolarizer(mi.UnpolarizedSpectrum(dr.select(active, kd / math.pi * cos_i, 0.0)))
             return value
 
         def pdf(self, ctx, si, wo, active=True):

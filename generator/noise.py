@@ -10,7 +10,10 @@ pick their own child, so every verb follows one rule: ``nearlight render``
 passes the scene's ``capture.seed``, a sweep task its ``seed`` (``nearlight
 reproduce`` runs sweeps: seed 0 in ``sweeps/paper/``). ``nearlight render SCENE
 --set capture.seed=3`` and a sweep task with seed 3 on the same scene
-therefore see the same noisy images.
+therefore see the same noisy images. The per-shot rig nuisances (analyzer
+jitter, lamp flicker) draw from child 2
+(:func:`nearlight.generator.nuisances.nuisance_rng`); children are keyed by
+their index, so children 0 and 1 are the same whether 2 or 3 are spawned.
 
 Camera noise
 ------------
@@ -85,7 +88,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from ..capture import Capture
-from ..physics.camera import AUTO_EXPOSURE, auto_saturation
+from ..physics.camera import auto_saturation
 from .scene import CameraNoise
 
 #: Expected electrons below which shot noise is the exact Poisson quantile (see the module docstring).

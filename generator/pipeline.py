@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..capture import write_capture
 from ..files.outputs import check_capture_out, check_folder
-from .noise import add_camera_noise, add_range_noise
+from .nuisances import observe
 from .render import check_memory, render_clean
 from .scene import Scene
 
@@ -16,8 +16,10 @@ def render_capture(scene: Scene, out_dir: str | os.PathLike, *, cache_dir: str |
                    progress: bool = True, overwrite: bool = False) -> Path:  # fmt: skip
     """Render ``scene`` and write its capture to ``out_dir``.
 
-    Camera noise (``capture.noise``) and range noise (``capture.range_noise_m``)
-    are both given ``capture.seed`` (the seed rule of :mod:`nearlight.generator.noise`). The output folder is
+    What the rig records is :func:`nearlight.generator.nuisances.observe` of the
+    render: the scene's ``nuisances``, camera noise (``capture.noise``) and
+    range noise (``capture.range_noise_m``), all given ``capture.seed`` (the
+    seed rule of :mod:`nearlight.generator.noise`). The output folder is
     checked before rendering, and written atomically, so a failure never
     leaves a partial capture.
 
@@ -50,8 +52,8 @@ def render_capture(scene: Scene, out_dir: str | os.PathLike, *, cache_dir: str |
         check_folder(cache_dir, what="render cache folder")
     capture = render_clean(scene, cache_dir=cache_dir, progress=progress)
     cap = scene.capture
-    capture = add_camera_noise(capture, noise=cap.noise, seed=cap.seed)
-    capture = add_range_noise(capture, sigma_m=cap.range_noise_m, seed=cap.seed)
+    capture = observe(capture, nuisances=scene.nuisances, realism=scene.realism, noise=cap.noise,
+                      range_noise=cap.range_noise_m, seed=cap.seed)  # fmt: skip
     return write_capture(capture, out, overwrite=overwrite)
 
 

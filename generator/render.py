@@ -10,7 +10,8 @@ How a capture is rendered
   calibrated range finder would pair them. With the default ``max_depth: 2``
   (direct light only, the paper's model) this is deterministic and one sample
   per pixel is exact; ``spp`` only averages the indirect bounces when
-  ``max_depth > 2``.
+  ``max_depth > 2``, and points of a sphere lamp (``lamp.radius`` > 0, then
+  ``spp × lamp.samples`` samples are traced, :func:`traced_spp`).
 - The integrator is Mitsuba's ``path``; its Mueller-matrix result is rotated
   into the sensor's Stokes frame exactly as Mitsuba's ``stokes`` integrator
   does (x axis = image horizontal), giving S0, S1, S2. One render serves every
@@ -40,12 +41,12 @@ from typing import Any
 
 import numpy as np
 
-from ..capture import Camera, Capture
+from ..capture import Camera, Capture, Rig
 from ..errors import UserError
 from ..files.atomic import atomic_write
 from ..physics.polarization import analyzer_stack
 from .lamp import filter_axes
-from .scene import MitsubaMaterial, Scene
+from .scene import LAMP_V1_KEYS, LampSpec, MitsubaMaterial, Scene, placement
 
 #: Bump when a change alters rendered values (invalidates caches).
 RENDER_VERSION = 1
@@ -99,7 +100,7 @@ def bsdf_dict(scene: Scene, *, part: str, channel: int | None) -> dict:
     unit = channel is None
     ks = 1.0 if unit else mat.specular[channel]
     kd = 1.0 if unit else mat.kd[channel]
-    return {
+    out = {
         "type": "nearlight_bsdf",
         "model": mat.model,
         "roughness": mat.roughness,
@@ -108,6 +109,12 @@ def bsdf_dict(scene: Scene, *, part: str, channel: int | None) -> dict:
         "polarization": mat.polarization,
         "eta": mat.eta,
     }
+    if mat.texture is not None:
+        frame = placement(scene.object)
+        out.update(texture_period=mat.texture.period_m, kd_contrast=mat.texture.kd_contrast,
+                   roughness_contrast=mat.texture.roughness_contrast, texture_origin=frame[:3, 3].tolist(),
+                   **{f"texture_{a}": frame[:3, i].tolist() for i, a in enumerate("xyz")})  # fmt: skip
+    return out
 
 
 def object_dicts(mi: ModuleType, scene: Scene, bsdf: dict, scratch: Path) -> dict[str, dict]:
@@ -138,9 +145,15 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
     intensity = 1.0 if channel is None else scene.lamp.intensity[channel]
     facing = scene.lamp_facing
     if lamp_route == "emitter":
-        lamps = {"lamp": lamp.polarized_lamp(scene.lamp.position, intensity, scene.lamp.polarizer_axis, facing)}
+        spec = scene.lamp
+        lamps = {"lamp": lamp.polarized_lamp(spec.position, intensity, spec.polarizer_axis, facing,
+                                             extinction_ratio=spec.polarizer_extinction_ratio,
+                                             anisotropy_k=spec.anisotropy_k, anisotropy_axis=spec.anisotropy_axis,
+                                             radius=spec.radius)}
         integrator = {"type": "path", "max_depth": scene.capture.max_depth}
     else:
+        if not scene.lamp_is_v1:
+            raise ValueError("the polarizer-sheet route renders only an ideal isotropic point lamp")
         lamps = lamp.polarizer_sheet(mi, scene.lamp.position, intensity, scene.lamp.polarizer_axis, facing)
         integrator = {"type": "volpath", "max_depth": scene.capture.max_depth}
     if stokes:
@@ -297,8 +310,12 @@ def lamp_inside(mi: ModuleType, mscene: Any, position: Any) -> bool:
 
 
 def render_key(scene: Scene) -> str:
-    """Hash of everything the clean render depends on (not noise, seed, angles)."""
+    """Hash of everything the clean render depends on (not noise, seed, angles, nor the nuisances applied after
+    rendering); lamp nuisances at their off values are left out, so a scene without them keeps its v1 key."""
     doc = scene.model_dump(mode="json")
+    default_lamp = LampSpec(position=scene.lamp.position).model_dump(mode="json")
+    unused = {"samples"} if scene.lamp.radius == 0 else set()  # a point lamp is not sampled
+    doc["lamp"] = {k: v for k, v in doc["lamp"].items() if k in LAMP_V1_KEYS or (v != default_lamp[k] and k not in unused)}
     cap = doc["capture"]
     relevant = {
         "version": RENDER_VERSION,
@@ -499,6 +516,12 @@ def _load_scene(mi: ModuleType, scene: Scene, doc: dict) -> Any:
         raise UserError(f"{scene.source}: object.file: Mitsuba cannot load {scene.object.file}: {reason}") from None
 
 
+def traced_spp(scene: Scene) -> int:
+    """Samples traced per pixel: ``capture.spp``, times ``lamp.samples`` for a sphere lamp (``lamp.radius`` > 0)."""
+    spp = scene.capture.spp
+    return spp * scene.lamp.samples if scene.lamp.radius > 0 else spp
+
+
 def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
     """Run Mitsuba: ``P``, ``N``, ``to_world`` and Stokes ``[3, H, W, 3]`` per part."""
     from tqdm import tqdm
@@ -513,7 +536,7 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
         passes = [(p, None) for p in ("specular", "diffuse")]
     else:
         passes = [(p, c) for c in range(3) for p in (("specular", "diffuse", "full") if analytic else ("full",))]
-    spp = scene.capture.spp
+    spp = traced_spp(scene)
     _remove_stale_scratch()
     with tempfile.TemporaryDirectory(prefix=f"{SCRATCH_PREFIX}{os.getpid()}-") as scratch, tqdm(
         total=len(passes) * spp, desc=f"render ({len(passes)} passes)", unit="spp", disable=not progress, leave=False
@@ -550,6 +573,28 @@ def _check_geometry(mi: ModuleType, scene: Scene, geometry: Any, P: np.ndarray) 
         )
     if scene.object.type in CLOSED and lamp_inside(mi, geometry, scene.lamp.position):
         raise UserError(f"{scene.source}: lamp.position: {list(scene.lamp.position)} is inside the object")
+    if scene.lamp.radius > 0:
+        gap = float(np.nanmin(np.linalg.norm(P - np.asarray(scene.lamp.position), axis=-1)))
+        if gap <= scene.lamp.radius:
+            raise UserError(
+                f"{scene.source}: lamp.radius: {scene.lamp.radius} m reaches the object (a surface point the camera "
+                f"sees is {gap:.4g} m from the lamp's centre)"
+            )
+
+
+def lamp_truth(scene: Scene) -> dict[str, Any]:
+    """The scene's lamp as ``truth.lamps[i]`` of capture format v2 (world frame, metres, W/sr)."""
+    spec = scene.lamp
+    axis = spec.anisotropy_axis if spec.anisotropy_axis is not None else scene.lamp_facing
+    return {
+        "position": list(spec.position),
+        "intensity": list(spec.intensity),
+        "radius_m": spec.radius,
+        "anisotropy": None if spec.anisotropy_k == 0 else
+        {"k": spec.anisotropy_k, "axis": (np.asarray(axis, float) / np.linalg.norm(axis)).tolist()},
+        "polarizer_axis": filter_axes(spec.polarizer_axis, scene.lamp_facing)[0].tolist(),
+        "polarizer_extinction_ratio": spec.polarizer_extinction_ratio,
+    }  # fmt: skip
 
 
 def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Capture:
@@ -577,7 +622,9 @@ def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Captur
             "lamp_position": list(scene.lamp.position),
             "lamp_intensity": list(scene.lamp.intensity),
             "bsdf": scene.material.truth(),
+            "lamps": [lamp_truth(scene)],
         },
+        rig=Rig(lamp_polarizer_extinction_ratio=scene.lamp.polarizer_extinction_ratio),
         extra=extra,
         meta={
             "generator": {

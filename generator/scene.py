@@ -1,8 +1,11 @@
 """Scene files: what to render, validated (pydantic v2), with ``--set`` overrides.
 
 A scene has five sections: ``camera``, ``object``, ``material``, ``lamp`` and
-``capture``. Positions are in metres, angles in degrees (the file is what a
-human types); colours are ``[r, g, b]``. ``Scene.model_dump(mode="json")``
+``capture``, and two optional keys for rig imperfections, off by default:
+``nuisances`` (applied after rendering, per seed) and ``realism`` (a named
+profile of nuisance values, :mod:`nearlight.generator.realism`). Positions are
+in metres, angles in degrees (the file is what a human types); colours are
+``[r, g, b]``. ``Scene.model_dump(mode="json")``
 loads back to the same scene. Every key is specified in ``docs/scene-files.md``.
 """
 
@@ -156,10 +159,23 @@ class Mesh(_Placed):
 ObjectSpec = Annotated[Union[Board, Sphere, Cylinder, Bookend, Torus, Mesh], Field(discriminator="type")]
 
 
+class Texture(_Model):
+    """A checker in the object's placed frame (:mod:`nearlight.physics.texture`): albedo ``kd·(1 + kd_contrast·s)``
+    and roughness ``·(1 + roughness_contrast·s)``, ``s = ±1`` per cell of side ``period_m``."""
+
+    period_m: PositiveFloat = 0.02
+    kd_contrast: Annotated[float, Field(ge=0, lt=1)] = 0.0
+    roughness_contrast: Annotated[float, Field(ge=0, lt=1)] = 0.0
+
+
 class _Analytic(_Model):
     kd: RGB = (0.0, 0.0, 0.0)
     polarization: Literal["ideal", "fresnel"] = "ideal"
     eta: Annotated[float, Field(gt=1)] = 1.5
+    texture: Texture | None = None
+
+    def _texture_truth(self) -> dict[str, Any]:
+        return {} if self.texture is None else {"texture": {"pattern": "checker", **self.texture.model_dump()}}
 
 
 class TorranceSparrow(_Analytic):
@@ -179,7 +195,7 @@ class TorranceSparrow(_Analytic):
 
     def truth(self) -> dict[str, Any]:
         return {"model": self.model, "ks": list(self.ks), "sigma": self.sigma, "kd": list(self.kd),
-                "polarization": self.polarization, "eta": self.eta}  # fmt: skip
+                "polarization": self.polarization, "eta": self.eta, **self._texture_truth()}  # fmt: skip
 
 
 class Ward(_Analytic):
@@ -199,7 +215,7 @@ class Ward(_Analytic):
 
     def truth(self) -> dict[str, Any]:
         return {"model": self.model, "rho_s": list(self.rho_s), "alpha": self.alpha, "kd": list(self.kd),
-                "polarization": self.polarization, "eta": self.eta}  # fmt: skip
+                "polarization": self.polarization, "eta": self.eta, **self._texture_truth()}  # fmt: skip
 
 
 class MitsubaMaterial(_Model):
@@ -225,19 +241,43 @@ class MitsubaMaterial(_Model):
 MaterialSpec = Annotated[Union[TorranceSparrow, Ward, MitsubaMaterial], Field(discriminator="model")]
 
 
+ExtinctionRatio = Annotated[float, Field(ge=1)]
+
+
 class LampSpec(_Model):
     """Point lamp of radiant intensity ``intensity`` (W/sr per channel, before the
     polarizer) behind an ideal linear polarizer filter facing the object, whose
-    axis is ``polarizer_axis`` (world) projected into the filter's plane."""
+    axis is ``polarizer_axis`` (world) projected into the filter's plane.
+
+    Nuisances of the lamp, rendered (each off by default): ``polarizer_extinction_ratio``
+    (None: ideal), an intensity ``I(θ) = I0·cosᵏθ`` about ``anisotropy_axis``
+    (``anisotropy_k`` 0: isotropic; axis None: towards ``object.position``), a
+    sphere of ``radius`` metres with the same intensity (0: a point), sampled
+    ``samples`` times per pixel sample (Monte Carlo; ignored for a point).
+    """
 
     position: Vec3
     intensity: RGB = (1.0, 1.0, 1.0)
     polarizer_axis: Vec3 = (1.0, 0.0, 0.0)
+    polarizer_extinction_ratio: ExtinctionRatio | None = None
+    anisotropy_k: Annotated[float, Field(ge=0, le=1000)] = 0.0
+    anisotropy_axis: Vec3 | None = None
+    radius: Annotated[float, Field(ge=0, le=0.5)] = 0.0
+    samples: Annotated[int, Field(ge=1, le=4096)] = 16
 
     @field_validator("polarizer_axis")
     @classmethod
     def _axis(cls, v: Vec3) -> Vec3:
         return _nonzero(v, "polarizer_axis")
+
+    @field_validator("anisotropy_axis")
+    @classmethod
+    def _aniso_axis(cls, v: Vec3 | None) -> Vec3 | None:
+        return None if v is None else _nonzero(v, "anisotropy_axis")
+
+
+#: Lamp keys that v1 scenes had; the others are nuisances, left out of the render key at their off values.
+LAMP_V1_KEYS = ("position", "intensity", "polarizer_axis")
 
 
 class CameraNoise(_Model):
@@ -247,6 +287,60 @@ class CameraNoise(_Model):
     read_noise: Annotated[float, Field(ge=0)] = 5.0
     bits: Annotated[int, Field(ge=1, le=24)] = 12
     saturation: PositiveFloat | Literal["auto"] = "auto"
+
+
+class AnalyzerNuisance(_Model):
+    """The camera's analyzer: finite extinction ratio, a constant angle offset, per-shot jitter."""
+
+    extinction_ratio: ExtinctionRatio | None = None
+    offset_deg: Annotated[float, Field(ge=-90, le=90)] = 0.0
+    jitter_deg: Annotated[float, Field(ge=0, le=45)] = 0.0
+
+
+class CameraNuisance(_Model):
+    """The camera: vignetting, a response curve, per-shot lamp flicker, white-balance gains."""
+
+    vignetting: Annotated[float, Field(ge=0, lt=1)] = 0.0
+    gamma: Annotated[float, Field(gt=0, le=10)] = 1.0
+    flicker: Annotated[float, Field(ge=0, le=0.5)] = 0.0
+    white_balance: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = (1.0, 1.0, 1.0)
+
+
+class RangeNuisance(_Model):
+    """The range finder: holes where too shiny or too dark, misregistration, depth quantisation."""
+
+    holes_shiny_above: Annotated[float, Field(gt=0, le=1)] | None = None
+    holes_dark_below: Annotated[float, Field(ge=0, lt=1)] = 0.0
+    shift_px: tuple[Annotated[float, Field(ge=-4, le=4)], Annotated[float, Field(ge=-4, le=4)]] = (0.0, 0.0)
+    quantum_m: Annotated[float, Field(ge=0, le=0.1)] = 0.0
+
+
+class CalibrationNuisance(_Model):
+    """Camera pose error: the capture's camera is the true one moved by these amounts."""
+
+    position_m: tuple[Annotated[float, Field(ge=-0.5, le=0.5)], ...] = (0.0, 0.0, 0.0)
+    rotation_deg: tuple[Annotated[float, Field(ge=-45, le=45)], ...] = (0.0, 0.0, 0.0)
+
+    @field_validator("position_m", "rotation_deg")
+    @classmethod
+    def _three(cls, v: tuple[float, ...]) -> tuple[float, ...]:
+        if len(v) != 3:
+            raise ValueError(f"expected 3 numbers, got {len(v)}")
+        return v
+
+
+class Nuisances(_Model):
+    """Rig imperfections applied after rendering, per seed (:mod:`nearlight.generator.nuisances`)."""
+
+    analyzer: AnalyzerNuisance = Field(default_factory=AnalyzerNuisance)
+    camera: CameraNuisance = Field(default_factory=CameraNuisance)
+    range: RangeNuisance = Field(default_factory=RangeNuisance)
+    calibration: CalibrationNuisance = Field(default_factory=CalibrationNuisance)
+
+    @property
+    def off(self) -> bool:
+        """Whether every nuisance here is at its off value."""
+        return self == Nuisances()
 
 
 class CaptureSpec(_Model):
@@ -275,7 +369,17 @@ class Scene(_Model):
     material: MaterialSpec
     lamp: LampSpec
     capture: CaptureSpec = Field(default_factory=CaptureSpec)
+    realism: Literal["none", "lab", "bench", "rough"] = "none"
+    nuisances: Nuisances = Field(default_factory=Nuisances)
     _source: str = PrivateAttr(default="<scene>")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _profile(cls, data: Any) -> Any:
+        """Expand ``realism`` into its nuisance values; keys the scene sets itself win."""
+        from .realism import expand
+
+        return expand(data)
 
     @model_validator(mode="after")
     def _lamp_filter(self) -> Scene:
@@ -296,6 +400,11 @@ class Scene(_Model):
         """Normal of the lamp's polarizer filter: from the lamp towards ``object.position``."""
         facing = np.subtract(self.object.position, self.lamp.position)
         return facing / np.linalg.norm(facing)
+
+    @property
+    def lamp_is_v1(self) -> bool:
+        """Whether the lamp is v1's: an ideal polarizer, isotropic (every lamp nuisance off)."""
+        return self.lamp.polarizer_extinction_ratio is None and self.lamp.anisotropy_k == 0 and self.lamp.radius == 0
 
     def __eq__(self, other: object) -> bool:  # the source file name is not part of the scene
         return isinstance(other, Scene) and self.model_dump() == other.model_dump()

@@ -8,7 +8,8 @@
   the Stokes fit, separation into specular and diffuse, DoLP/AoLP, the lamp
   polarizer's halving.
 - :mod:`nearlight.physics.camera`: pinhole rays and their projection, the
-  ``saturation: auto`` exposure.
+  ``saturation: auto`` exposure, vignetting and the response curve (and its inverse).
+- :mod:`nearlight.physics.texture`: the checker texture of albedo and roughness.
 
 Conventions: ``docs/physics.md``.
 """

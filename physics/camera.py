@@ -100,3 +100,57 @@ def auto_saturation(*images: np.ndarray) -> float:
     """
     peak = max(float(np.nanmax(v)) for v in images)
     return peak / AUTO_EXPOSURE if peak > 0 else 1.0
+
+
+# --------------------------------------------------------------------------- camera nuisances
+
+
+def vignetting_gain(width: int, height: int, strength: float) -> np.ndarray:
+    """Relative illumination of each pixel centre: ``1 − v·ρ²``, ρ the distance from the image centre over the
+    half-diagonal (1 at the corners), so the corners get ``1 − v`` of the centre's light.
+
+    Parameters
+    ----------
+    width, height : int
+        Image size, pixels.
+    strength : float
+        ``v`` in [0, 1): the fall-off at the corners (0: none).
+
+    Returns
+    -------
+    ndarray, shape (H, W), float64
+        In ``(1 − v, 1]``; dividing by it undoes the vignetting exactly (up to rounding).
+    """
+    x = np.arange(width) + 0.5 - width / 2.0
+    y = np.arange(height) + 0.5 - height / 2.0
+    rho2 = (x[None, :] ** 2 + y[:, None] ** 2) / ((width / 2.0) ** 2 + (height / 2.0) ** 2)
+    return 1.0 - float(strength) * rho2
+
+
+def response(radiance: np.ndarray, gamma: float, white: float) -> np.ndarray:
+    """A camera's non-linear response: ``white · (L / white)^(1/γ)`` (a gamma curve through 0 and ``white``).
+
+    Parameters
+    ----------
+    radiance : ndarray
+        Linear values L (negative ones are clipped to 0).
+    gamma : float
+        γ > 0; 1 is linear (then ``radiance`` is returned as it is). sRGB-like cameras: about 2.2.
+    white : float
+        The value mapped to itself (the full-well radiance), > 0.
+
+    Returns
+    -------
+    ndarray
+        Recorded values; :func:`inverse_response` with the same ``gamma`` and ``white`` gives L back.
+    """
+    if gamma == 1.0:
+        return radiance
+    return white * np.power(np.clip(radiance, 0.0, None) / white, 1.0 / gamma)
+
+
+def inverse_response(recorded: np.ndarray, gamma: float, white: float) -> np.ndarray:
+    """The inverse of :func:`response`: linear values from recorded ones (``white · (V / white)^γ``)."""
+    if gamma == 1.0:
+        return recorded
+    return white * np.power(np.clip(recorded, 0.0, None) / white, gamma)

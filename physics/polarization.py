@@ -56,22 +56,33 @@ def analyzer_matrix(angles_deg: Any) -> np.ndarray:
     return 0.5 * np.stack([np.ones_like(two_theta), np.cos(two_theta), np.sin(two_theta)], axis=1)
 
 
-def analyzer_stack(stokes: np.ndarray, angles_deg: Any) -> np.ndarray:
-    """Ideal-analyzer images ``½ (S0 + S1 cos 2θ + S2 sin 2θ)``.
+def analyzer_stack(stokes: np.ndarray, angles_deg: Any, *, extinction_ratio: float | None = None) -> np.ndarray:
+    """Analyzer images: ideal ``½ (S0 + S1 cos 2θ + S2 sin 2θ)``, or through a real polarizer.
+
+    A real linear polarizer has principal intensity transmittances ``k1 = 1``
+    and ``k2 = 1/ε`` (ε its extinction ratio): ``½ [(1 + 1/ε) S0 + (1 − 1/ε)
+    (S1 cos 2θ + S2 sin 2θ)]``. On fully polarized light (a mirror) the
+    darkest image is then ``1/ε`` of the brightest instead of 0 (Malus's law
+    with a floor).
 
     Parameters
     ----------
     stokes : ndarray, shape (3, H, W, C)
         S0, S1, S2 (radiance; x axis of the Stokes frame = image horizontal).
     angles_deg : array_like, shape (K,)
-        Analyzer angles, degrees.
+        Analyzer angles, degrees (each shot its own: they need not be distinct).
+    extinction_ratio : float or None, optional
+        ε ≥ 1; None: the ideal analyzer (the first formula, exactly).
 
     Returns
     -------
     ndarray, shape (K, H, W, C)
     """
     t = np.radians(np.asarray(angles_deg, float))[:, None, None, None]
-    return 0.5 * (stokes[0] + stokes[1] * np.cos(2 * t) + stokes[2] * np.sin(2 * t))
+    if extinction_ratio is None:
+        return 0.5 * (stokes[0] + stokes[1] * np.cos(2 * t) + stokes[2] * np.sin(2 * t))
+    k2 = 1.0 / float(extinction_ratio)
+    return 0.5 * ((1.0 + k2) * stokes[0] + (1.0 - k2) * (stokes[1] * np.cos(2 * t) + stokes[2] * np.sin(2 * t)))
 
 
 def analyzer_stack_ideal(diffuse: np.ndarray, specular: np.ndarray, phase: np.ndarray, angles_deg: Any) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Capture format v1: round trips and one-line errors for bad captures."""
+"""Capture format: v1 and v2 round trips and one-line errors for bad captures."""
 
 from __future__ import annotations
 
@@ -88,7 +88,7 @@ def _rewrite_exr(folder, edit):
         (lambda f: (f / "capture.json").unlink(), r"capture\.json: missing"),
         (lambda f: (f / "capture.exr").unlink(), r"capture\.exr: missing"),
         (lambda f: (f / "capture.json").write_text("{"), r"capture\.json: not valid JSON"),
-        (lambda f: _rewrite_json(f, format="nearlight-capture/2"), r"format: expected 'nearlight-capture/1'"),
+        (lambda f: _rewrite_json(f, format="nearlight-capture/3"), r"format: expected 'nearlight-capture/1' or 'nearlight-capture/2'"),
         (lambda f: _rewrite_json(f, width=9), r"channel .*: shape 6x8 .* capture\.json's 6x9"),
         (lambda f: _rewrite_json(f, camera={"position": [0, 1]}), r"camera\.position: expected 3 numbers"),
         (lambda f: _rewrite_json(f, analyzer_angles_deg=[0, 45, 90]), r"pol0, pol1, pol2, pol3 do not match"),

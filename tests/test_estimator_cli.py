@@ -98,9 +98,9 @@ def test_t_max_that_cannot_reach_the_lamp(capture_dir, capsys):
     assert "t_max" in line and str(capture_dir) in line
 
 
-def test_json_that_is_not_format_v1(capture_dir, capsys):
+def test_json_that_is_not_a_known_format(capture_dir, capsys):
     doc = json.loads((capture_dir / "capture.json").read_text())
-    doc["format"] = "nearlight-capture/2"
+    doc["format"] = "nearlight-capture/3"
     (capture_dir / "capture.json").write_text(json.dumps(doc))
     line = _error(capsys, ["estimate", str(capture_dir)])
     assert "capture.json" in line and "format" in line

@@ -159,3 +159,27 @@ def test_the_paper_sweeps_load_in_both_profiles():
         for s in sweeps.values():
             assert s.tasks[0].scene["camera"]["resolution"] == ([160, 120] if quick else [640, 480])
             assert {t.seed for t in s.tasks} == {0} and not s.crlb
+
+
+def test_realism_axis_and_per_shot_nuisances_run_every_seed():
+    """`realism` is an axis (a top-level scene key); a configuration whose captures draw per-shot
+    nuisances from the seed (lab: analyzer jitter, lamp flicker) runs every seed, as noise does,
+    and its rows say so (`noisy`), so `compare` pools them; `none` and a jitter-free dotted
+    nuisance run once."""
+    from pathlib import Path
+
+    smoke = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
+    doc = yaml.safe_load(smoke.read_text())
+    doc.update(seeds=3, methods=["full"], axes={"realism": ["none", "lab"],
+                                               "nuisances.camera.vignetting": [0.0, 0.1]})
+    sweep = load_sweep(doc, check_methods=False)
+    by = {}
+    for t in sweep.tasks:
+        by.setdefault((t.config["realism"], t.config["nuisances.camera.vignetting"]), []).append(t)
+    assert {k: [t.seed for t in v] for k, v in by.items()} == {
+        ("none", 0.0): [0], ("none", 0.1): [0], ("lab", 0.0): [0, 1, 2], ("lab", 0.1): [0, 1, 2]}
+    assert all(t.noisy == (t.config["realism"] == "lab") for t in sweep.tasks)
+    assert sweep.tasks[0].scene.get("realism", "none") == "none" and by[("lab", 0.0)][0].scene["realism"] == "lab"
+    # the lab lamp has a radius: a different render; vignetting is applied after rendering: the same one
+    assert by[("lab", 0.0)][0].render_key != by[("none", 0.0)][0].render_key
+    assert by[("none", 0.1)][0].render_key == by[("none", 0.0)][0].render_key

@@ -114,6 +114,29 @@ SCENE_BREAKS: dict[str, list[Any]] = {
                       {"saturation": "max"}, {"unknown": 1}],  # fmt: skip
     "capture.range_noise_m": [-0.001, "1mm"],
     "capture.seed": [-1, 1.5, "seed"],
+    # nuisances (issue 13)
+    "realism": ["messy", 3, None],
+    "lamp.polarizer_extinction_ratio": [0.9, -1, "ideal"],
+    "lamp.anisotropy_k": [-1, "cos"],
+    "lamp.anisotropy_axis": [[0, 0, 0], [1, 0]],
+    "lamp.radius": [-0.01, 1.0, "big"],
+    "material.texture": ["checker", {"kd_contrast": 1.0}, {"period_m": 0}, {"roughness_contrast": -0.1}, {"bogus": 1}],
+    "lamp.samples": [0, 1.5, 1 << 20],
+    "nuisances": ["bench", [1]],
+    "nuisances.analyzer.extinction_ratio": [0.5, "high"],
+    "nuisances.analyzer.offset_deg": [91, "x"],
+    "nuisances.analyzer.jitter_deg": [-0.1],
+    "nuisances.camera.vignetting": [1.0, -0.1],
+    "nuisances.camera.gamma": [0, -2.2],
+    "nuisances.camera.flicker": [-0.01, 2],
+    "nuisances.camera.white_balance": [[1, 1], [0, 1, 1]],
+    "nuisances.range.holes_shiny_above": [0, 1.5],
+    "nuisances.range.holes_dark_below": [1, -0.1],
+    "nuisances.range.shift_px": [[0.1], [9, 0], "left"],
+    "nuisances.range.quantum_m": [-0.001, 1],
+    "nuisances.calibration.position_m": [[0, 0], [1, 0, 0]],
+    "nuisances.calibration.rotation_deg": [[0, 0, 0, 0], [90, 0, 0]],
+    "nuisances.bogus.key": [1],
 }
 
 
@@ -409,7 +432,7 @@ _exr_byte_cases()
 def _json_mutation_cases() -> None:
     """Random mutations of capture.json: wrong types, missing keys, bad values (seeded)."""
     bad: dict[str, list[Any]] = {
-        "format": ["nearlight-capture/2", None, 1, "exr"],
+        "format": ["nearlight-capture/3", "nearlight-capture/0", None, 1, "exr"],
         "units": ["mm", "inch", 1],
         "width": [0, -32, "32", 33, 32.5, None, True],
         "height": [0, 25, "24", None],
@@ -419,6 +442,21 @@ def _json_mutation_cases() -> None:
         "camera.fov_x_deg": [0, 180, -5, "wide"],
         "analyzer_angles_deg": [[], [0, 45], [0, 45, 90], "all", [0, 45, 90, "135"]],
         "lamp_polarizer_axis": [[1, 0], "x"],
+        # v2 keys (docs/capture-format.md)
+        "rig": ["ideal", [1], 3],
+        "rig.lamps": [0, -1, 1.5, "one", True],
+        "rig.analyzer_extinction_ratio": [0.5, -3, "high", [300], float("inf")],
+        "rig.lamp_polarizer_extinction_ratio": [0, "x"],
+        "truth": ["lamp", [1, 2]],
+        "truth.lamps": [[], "one", [5], [{"position": [0, 0]}], [{"position": [0, 0, 1], "radius_m": -1}],
+                        [{"position": [0, 0, 1], "intensity": [-1, 1, 1]}],
+                        [{"position": [0, 0, 1], "polarizer_extinction_ratio": 0.9}],
+                        [{"position": [0, 0, 1], "anisotropy": {"k": -1, "axis": [0, 0, 1]}}],
+                        [{"position": [0, 0, 1], "anisotropy": {"k": 2, "axis": [0, 0, 0]}}],
+                        [{"position": [0, 0, 1], "anisotropy": "cos"}]],  # fmt: skip
+        "truth.camera": ["pinhole", {"position": [0, 1]}, {"position": [0, 0, 1], "fov_x_deg": 200},
+                         {"position": [0, 0, 1], "to_world": [[1, 0], [0, 1]]}],  # fmt: skip
+        "truth.nuisances": ["bench", [1]],
     }
     rng = random.Random(f"{SEED}-json")
     items = [(k, v) for k, vs in bad.items() for v in vs]
