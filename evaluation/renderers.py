@@ -51,6 +51,10 @@ def convert_material(material: dict, model: str) -> dict:
     return out
 
 
+#: Object keys that place a shape (kept when an ``object`` axis value changes the shape's type).
+PLACEMENT_KEYS = ("position", "rotation_deg", "normal")
+
+
 class Renderer:
     """Scene format and rendering of one renderer (subclasses fill the key names)."""
 
@@ -86,6 +90,8 @@ class Renderer:
         if name == "object":
             if isinstance(value, dict):
                 base = get_dotted(scene, self.object_key.rpartition(".")[0] or self.object_key) or {}
+                if "type" in value and value["type"] != base.get("type"):  # another shape: keep only its placement
+                    base = {k: v for k, v in base.items() if k in PLACEMENT_KEYS}
                 set_dotted(scene, self.object_key.rpartition(".")[0], {**base, **value}, where=where)
             else:
                 set_dotted(scene, self.object_key, value, where=where)

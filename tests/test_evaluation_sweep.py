@@ -183,3 +183,15 @@ def test_realism_axis_and_per_shot_nuisances_run_every_seed():
     # the lab lamp has a radius: a different render; vignetting is applied after rendering: the same one
     assert by[("lab", 0.0)][0].render_key != by[("none", 0.0)][0].render_key
     assert by[("none", 0.1)][0].render_key == by[("none", 0.0)][0].render_key
+
+
+def test_an_object_axis_of_another_type_keeps_only_the_placement():
+    from pathlib import Path
+
+    doc = yaml.safe_load((Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml").read_text())
+    doc["scene"]["object"]["position"] = [0.0, 0.0, 0.01]
+    doc.update(seeds=1, methods=["full"], axes={"object": {"board": {"type": "board", "size": [0.3, 0.3]},
+                                                           "sphere": {"type": "sphere", "radius": 0.1}}})
+    board, sphere = (t.scene["object"] for t in load_sweep(doc, check_methods=False).tasks)
+    assert board == {"type": "board", "size": [0.3, 0.3], "position": [0.0, 0.0, 0.01]}
+    assert sphere == {"type": "sphere", "radius": 0.1, "position": [0.0, 0.0, 0.01]}
