@@ -150,9 +150,10 @@ def ep_curves(capture: Any, *, factors: Sequence[float] | None = None) -> dict[s
     dict
         ``{"peak": ..., "mirror": ...}``, each ``t_true`` (m), ``t`` (m),
         ``three_plus_ep`` (3 + E_p, ≥ 0) and ``t_star`` (the grid minimiser
-        over that dense grid, m).
+        over that dense grid, m); ``delta_px``: |brightest pixel − mirror point|, pixels.
     """
     obs = observe(capture)
+    delta = float(np.linalg.norm(np.asarray(obs.peak, dtype=float) - mirror_oracle_pixel(capture, obs)))
     lamp = np.asarray(capture.truth["lamp_position"], dtype=float)
     grid = np.geomspace(0.05, 4.0, 160) if factors is None else np.asarray(factors, dtype=float)
     out = {}
@@ -162,7 +163,7 @@ def ep_curves(capture: Any, *, factors: Sequence[float] | None = None) -> dict[s
         ep = 3.0 + ray.ep(t)
         out[name] = {"t_true": t_true, "t": t.tolist(), "three_plus_ep": ep.tolist(),
                      "t_star": float(t[int(np.argmin(ep))])}
-    return out
+    return {**out, "delta_px": delta}
 
 
 def distribution(errors: Sequence[float], *, reference: float) -> dict[str, Any]:

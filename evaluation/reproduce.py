@@ -388,6 +388,7 @@ def first_stage_view(ex: Experiment) -> dict[str, Any]:
     first = ex.rows[ex.rows[LAYOUT] == layout].iloc[0]  # the scene's own layout (the mirror direction)
     _, seen = ex.captures(first)
     curves = pf.ep_curves(seen)
+    delta_px = curves.pop("delta_px")
     fig = _ep_figure(curves, ex.report_dir / "figures" / "first_stage_ep.png",
                      where=f"layout {first[LAYOUT]}, jitter {first[JITTER]}")
     return {
@@ -400,6 +401,7 @@ def first_stage_view(ex: Experiment) -> dict[str, Any]:
         "distributions": _distributions(ex),
         "samples": _samples(ex),
         "ep_curves": {"layout": str(first[LAYOUT]), "jitter": str(first[JITTER]),
+                      "delta_px": delta_px,
                       **{k: {"t_true": v["t_true"], "t_star": v["t_star"]} for k, v in curves.items()}},
         "fidelity": {"ep_flatness": pf.ep_flatness(), "t_star_curve": pf.t_star_curve(),
                      "ward_bias": pf.ward_bias()},

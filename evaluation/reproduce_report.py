@@ -209,8 +209,8 @@ of the board centre at t = Dc/(Dc/t); σ = 0.1, Ward of the same lobe width and 
 
 {ward}
 
-The figure: 3 + E_p(t) on the rendered board (layout `{curves['layout']}`, jitter `{curves['jitter']}`) along the
-peak ray (t* = {curves['peak']['t_star'] / curves['peak']['t_true']:.3f} of the lamp's distance) and along the true
+The figure: 3 + E_p(t) on the rendered board (layout `{curves['layout']}`, jitter `{curves['jitter']}`; its brightest
+pixel is {curves['delta_px']:.2f} px from the true mirror point) along the peak ray (t* = {curves['peak']['t_star'] / curves['peak']['t_true']:.3f} of the lamp's distance) and along the true
 mirror ray (t* = {curves['mirror']['t_star'] / curves['mirror']['t_true']:.3f}), over a dense t grid.
 
 {_figures(ex)}

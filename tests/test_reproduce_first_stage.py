@@ -13,8 +13,9 @@ def test_ep_curves_the_mirror_ray_finds_the_lamp_the_peak_ray_does_not():
     # measured 0.39 there), well short of it.
     cap = analytic_capture(bsdf=TS_BOARD, analyzer_angles_deg=None)
     c = ep_curves(cap)
-    assert set(c) == {"peak", "mirror"}
-    for name in c:
+    assert set(c) == {"peak", "mirror", "delta_px"}
+    assert 0.5 < c["delta_px"] < 2.0  # the brightest pixel is not the mirror point (t_star_curve: 1.1 px)
+    for name in ("peak", "mirror"):
         assert len(c[name]["t"]) == len(c[name]["three_plus_ep"]) == 160
         assert min(c[name]["three_plus_ep"]) >= -1e-9  # E_p >= -3: three correlation coefficients
     assert abs(c["mirror"]["t_star"] / c["mirror"]["t_true"] - 1.0) < 0.03
