@@ -72,7 +72,7 @@ def _study_rows(name: str, ex: dict[str, Any]) -> Iterator[tuple[str, str, str, 
         for where, dist in parts:
             for metric in ("median", "p10", "p25", "p75", "p90", "min", "max", "reference_percentile", "failed"):
                 yield name, f"{method}: {where}", metric, dist.get(metric)
-    if "ep_curves" in ex:
+    if "delta_px" in ex.get("ep_curves", {}):
         yield name, "ep_curves", "delta_px", ex["ep_curves"]["delta_px"]
     fidelity = ex.get("fidelity", {})
     for table, doc in fidelity.items():
