@@ -492,6 +492,20 @@ def _profile(name: str, sweeps: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+#: Experiments that render into another one's cache (their scenes are a subset of its).
+SHARED_RENDERS = {"first_stage_corrected": "first_stage"}
+
+
+def _cache(key: str, folders: Mapping[str, Path], cache_dir: str | Path | None | bool) -> str | Path | None | bool:
+    """The render cache of experiment ``key``: ``cache_dir``, but with the default (True, each results
+    folder's ``renders/``) an experiment of :data:`SHARED_RENDERS` re-uses the other's renders."""
+    from .store import RENDERS
+
+    if cache_dir is True and key in SHARED_RENDERS and SHARED_RENDERS[key] in folders:
+        return folders[SHARED_RENDERS[key]] / RENDERS
+    return cache_dir
+
+
 def reproduce(
     out: str | Path, *, quick: bool = False, workers: int = 1, progress: bool = True,
     cache_dir: str | Path | None | bool = True,
@@ -544,11 +558,12 @@ def reproduce(
     results: dict[str, Any] = {}
     command = "nearlight reproduce" + (" --quick" if quick else "") + f" --out {out}"
     for key, s in sweeps.items():
-        summary = run_sweep(s, folders[key], workers=workers, progress=progress, cache_dir=cache_dir, command=command)
+        cache = _cache(key, folders, cache_dir)
+        summary = run_sweep(s, folders[key], workers=workers, progress=progress, cache_dir=cache, command=command)
         if not summary.complete:
             raise UserError(f"{folders[key]}: sweep {s.name} is incomplete; run `nearlight reproduce` again")
         rows, _ = read_results(folders[key])
-        results[key] = EXPERIMENTS[key][1](Experiment(key, s, folders[key], rows, out, cache_dir))
+        results[key] = EXPERIMENTS[key][1](Experiment(key, s, folders[key], rows, out, cache))
     doc = {
         "nearlight_version": __version__,
         "code_version": code_version(),

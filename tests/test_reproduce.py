@@ -196,6 +196,9 @@ def test_first_stage_is_a_distribution_over_layouts_and_jitter(quick_report):
     d = doc["experiments"]["first_stage"]["distributions"]
     assert d["paper-init (ORACLE mirror point)"]["all"]["median"] < d["paper-init"]["all"]["median"]
     assert "first_stage_ep.png" in " ".join(doc["experiments"]["first_stage"]["figures"])
+    # the corrected variants' scenes are first_stage's: rendered once, in first_stage's cache
+    corrected = out / doc["experiments"]["first_stage_corrected"]["results"]
+    assert not any((corrected / "renders").glob("*")) and any((out / doc["experiments"]["first_stage"]["results"] / "renders").iterdir())
 
 
 def test_check_covers_the_first_stage_tables(quick_report):
