@@ -136,3 +136,66 @@ def ward_bias(*, dc_over_t: Sequence[float] = (0.5, 0.7, 1.0, 2.0), sigma: float
         row["ward_bias"] = row["ward_t_ratio"] - 1.0
         rows.append(row)
     return {"dc": dc, "rows": rows}
+
+
+def ep_curves(capture: Any, *, factors: Sequence[float] | None = None) -> dict[str, Any]:
+    """E_p(t) along the peak ray (the printed paper's) and along the exact mirror ray (ORACLE).
+
+    Each ray's t runs over ``factors`` × its own true t (the true lamp's
+    distance from the ray's origin; on the peak ray the lamp is off the ray
+    and t_true is the distance to it). For the figure of the §4.1 board.
+
+    Returns
+    -------
+    dict
+        ``{"peak": ..., "mirror": ...}``, each ``t_true`` (m), ``t`` (m),
+        ``three_plus_ep`` (3 + E_p, ≥ 0) and ``t_star`` (the grid minimiser
+        over that dense grid, m); ``delta_px``: |brightest pixel − mirror point|, pixels.
+    """
+    obs = observe(capture)
+    delta = float(np.linalg.norm(np.asarray(obs.peak, dtype=float) - mirror_oracle_pixel(capture, obs)))
+    lamp = np.asarray(capture.truth["lamp_position"], dtype=float)
+    grid = np.geomspace(0.05, 4.0, 160) if factors is None else np.asarray(factors, dtype=float)
+    out = {}
+    for name, ray in (("peak", RaySearch(obs)), ("mirror", _exact_ray(capture)[0])):
+        t_true = float(np.linalg.norm(lamp - ray.origin))
+        t = grid * t_true
+        ep = 3.0 + ray.ep(t)
+        out[name] = {"t_true": t_true, "t": t.tolist(), "three_plus_ep": ep.tolist(),
+                     "t_star": float(t[int(np.argmin(ep))])}
+    return {**out, "delta_px": delta}
+
+
+def distribution(errors: Sequence[float], *, reference: float) -> dict[str, Any]:
+    """Median, p10, p90, quartiles of errors (%), and the percentile of ``reference`` among them.
+
+    A failed sample (NaN) counts as a failure: it sorts above every finite
+    error (so it can raise the p90 to None, never lower it) and is counted in
+    ``failed``. ``reference_percentile`` is the percentage of samples whose
+    error is at most ``reference`` (0: the reference is better than every
+    sample).
+
+    Returns
+    -------
+    dict
+        ``n``, ``failed``, ``median``, ``p10``, ``p25``, ``p75``, ``p90``
+        (None where a failure lands on it), ``min``, ``max``, ``reference``,
+        ``reference_percentile``.
+    """
+    e = np.asarray(errors, dtype=float)
+    filled = np.where(np.isnan(e), np.inf, e)
+    q = {name: _quantile(np.sort(filled), p) for name, p in
+         (("p10", 10), ("p25", 25), ("median", 50), ("p75", 75), ("p90", 90), ("min", 0), ("max", 100))}
+    return {"n": int(len(e)), "failed": int(np.isnan(e).sum()), **q,
+            "reference": float(reference),
+            "reference_percentile": float(100.0 * np.mean(filled <= reference))}
+
+
+def _quantile(ordered: np.ndarray, p: float) -> float | None:
+    """numpy's linear percentile ``p`` of sorted values; None where it needs a failure (+inf)."""
+    pos = p / 100.0 * (len(ordered) - 1)
+    lo, frac = int(np.floor(pos)), pos - np.floor(pos)
+    used = ordered[lo : lo + 2] if frac > 0 else ordered[lo : lo + 1]
+    if not np.all(np.isfinite(used)):
+        return None
+    return float(used[0] + frac * (used[-1] - used[0]))

@@ -28,6 +28,15 @@ Experiments (Hara, Nishino, Nakazawa, Ikeuchi 2002), one sweep file each:
   Fig. 1), measured: the Torrance–Sparrow board with the lamp moved along the
   ray from the board centre (the engine's ``lamp_distance`` axis) from near to
   far; the ``distant`` baseline against the near-field methods.
+* ``first_stage`` (``first_stage.yaml``) — §4.1's first stage as a distribution
+  (issue 11): the Ward board from a declared family of camera layouts × sub-pixel
+  shifts of the camera, ``paper-init`` as printed (origin=peak), from a sub-pixel
+  peak and from the true mirror point (ORACLE); median, spread and the paper's
+  8.9 % within it, the :mod:`~nearlight.evaluation.paper_fidelity` tables, and
+  E_p(t) along the peak and the true mirror ray.
+* ``first_stage_corrected`` (``first_stage_corrected.yaml``) — the corrected
+  variants (DEPARTURES: origin=model; origin=model with am=bounded) on a subset
+  of the same jitters.
 
 Profiles: the sweep files as written are the ``full`` run (640×480, 8
 analyzer angles); ``--quick`` applies each file's ``quick`` profile (160×120, 4
@@ -308,12 +317,144 @@ def _distance_plot(rows: list[dict[str, Any]], methods: list[str], path: Path) -
     return save_png(fig, path)
 
 
+# --------------------------------------------------------------------------- §4.1 first stage as a distribution
+
+#: The first-stage sweeps' axes: camera layout and sub-pixel jitter of the look-at point.
+LAYOUT, JITTER = "camera.position", "camera.look_at"
+#: Each first-stage variant's kind, for the report (PRINTED: the paper as printed; ORACLE: reads the truth;
+#: DEPARTURE: a change to the printed method). Labels are the sweep files' method names.
+VARIANT_KIND = {
+    "paper-init": "PRINTED (origin=peak)",
+    "paper-init (subpixel)": "printed stage, sub-pixel peak (origin=subpixel)",
+    "paper-init (ORACLE mirror point)": "ORACLE (origin=mirror-oracle: the true mirror point)",
+    "paper-init (model origin)": "DEPARTURE (origin=model)",
+    "paper (model origin, bounded AM)": "DEPARTURE (origin=model, am=bounded)",
+}
+
+
+def paper_first_stage_pct() -> float:
+    """The paper's §4.1 first-stage error, % of |L_true| (its L* against (13, 2, 3), from its origin)."""
+    b = PAPER["board"]
+    true = np.asarray(b["lamp_true"])
+    return float(100.0 * np.linalg.norm(np.asarray(b["lamp_first_stage"]) - true) / np.linalg.norm(true))
+
+
+def _distributions(ex: Experiment) -> dict[str, Any]:
+    """Per method: the error distribution over every (layout, jitter) sample, per layout, and over the two
+    halves of the jitter samples (first half of the jitter labels vs the second: how stable it is)."""
+    from .paper_fidelity import distribution
+
+    ref = paper_first_stage_pct()
+    jitters = [label for label, _ in ex.sweep.axes[JITTER]]
+    halves = (jitters[: len(jitters) // 2], jitters[len(jitters) // 2:])
+    out = {}
+    for label in [m.label for m in ex.sweep.methods]:
+        sel = ex.rows[ex.rows["method"] == label]
+        err = lambda df: [float(v) if s == "ok" else math.nan  # noqa: E731
+                          for v, s in zip(df["lamp_position_error_pct"], df["status"])]
+        out[label] = {
+            "kind": VARIANT_KIND.get(label, label),
+            "all": distribution(err(sel), reference=ref),
+            "layouts": {str(lay): distribution(err(sel[sel[LAYOUT] == lay]), reference=ref)
+                        for lay, _ in ex.sweep.axes[LAYOUT]},
+            "halves": [{"jitters": h, **distribution(err(sel[sel[JITTER].isin(h)]), reference=ref)}
+                       for h in halves if h],
+        }
+    return out
+
+
+def _samples(ex: Experiment) -> list[dict[str, Any]]:
+    """Every row: its layout, jitter, method and errors (what the distributions are made of)."""
+    truths: dict[str, Any] = {}
+    out = []
+    for _, r in ex.rows.iterrows():
+        task = ex.task(r)
+        if task.render_key not in truths:
+            truths[task.render_key] = {"lamp_intensity": task.scene["lamp"]["intensity"]}
+        out.append({"layout": str(r[LAYOUT]), "jitter": str(r[JITTER]), "method": r["method"],
+                    **_method_row(r, truths[task.render_key])})
+    return out
+
+
+def _layouts(ex: Experiment) -> dict[str, Any]:
+    return {str(label): {"camera_position": list(value)} for label, value in ex.sweep.axes[LAYOUT]}
+
+
+def first_stage_view(ex: Experiment) -> dict[str, Any]:
+    """§4.1 first stage over camera layouts × sub-pixel jitter; the paper_fidelity numbers; the E_p figure."""
+    from . import paper_fidelity as pf
+
+    layout = "paper-33deg" if "paper-33deg" in set(ex.rows[LAYOUT]) else ex.rows[LAYOUT].iloc[0]
+    first = ex.rows[ex.rows[LAYOUT] == layout].iloc[0]  # the scene's own layout (the mirror direction)
+    _, seen = ex.captures(first)
+    curves = pf.ep_curves(seen)
+    delta_px = curves.pop("delta_px")
+    fig = _ep_figure(curves, ex.report_dir / "figures" / "first_stage_ep.png",
+                     where=f"layout {first[LAYOUT]}, jitter {first[JITTER]}")
+    return {
+        **ex.header(),
+        "paper_unit_m": PAPER_UNIT_M,
+        "paper_first_stage_pct": paper_first_stage_pct(),
+        "resolution": [seen.width, seen.height],
+        "layouts": _layouts(ex),
+        "jitters": [str(label) for label, _ in ex.sweep.axes[JITTER]],
+        "distributions": _distributions(ex),
+        "samples": _samples(ex),
+        "ep_curves": {"layout": str(first[LAYOUT]), "jitter": str(first[JITTER]),
+                      "delta_px": delta_px,
+                      **{k: {"t_true": v["t_true"], "t_star": v["t_star"]} for k, v in curves.items()}},
+        "fidelity": {"ep_flatness": pf.ep_flatness(), "t_star_curve": pf.t_star_curve(),
+                     "ward_bias": pf.ward_bias()},
+        "figures": [str(fig.relative_to(ex.report_dir))],
+    }
+
+
+def first_stage_corrected_view(ex: Experiment) -> dict[str, Any]:
+    """The corrected first-stage variants (DEPARTURES) on a subset of the same layouts and jitter."""
+    return {
+        **ex.header(),
+        "layouts": _layouts(ex),
+        "jitters": [str(label) for label, _ in ex.sweep.axes[JITTER]],
+        "distributions": _distributions(ex),
+        "samples": _samples(ex),
+        "figures": [],
+    }
+
+
+def _ep_figure(curves: Mapping[str, Any], path: Path, *, where: str) -> Path:
+    """3 + E_p(t) along the peak ray and along the true mirror ray, side by side, t over each ray's true t."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), sharey=True)
+    titles = {"peak": "peak ray (printed: brightest pixel)", "mirror": "true mirror ray (ORACLE)"}
+    for ax, (name, c) in zip(axes, curves.items()):
+        t = np.asarray(c["t"]) / c["t_true"]
+        ax.plot(t, np.maximum(c["three_plus_ep"], 1e-12), "-", color="C0" if name == "peak" else "C1")
+        ax.axvline(1.0, color="k", lw=0.8, ls="--", label="true lamp distance")
+        ax.axvline(c["t_star"] / c["t_true"], color="C3", lw=1.2, label=f"t* = {c['t_star'] / c['t_true']:.3f} t")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("t / t_true")
+        ax.set_title(titles[name])
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[0].set_ylabel("3 + E_p(t)  (0 = collinear)")
+    fig.suptitle(f"§4.1 Ward board, E_p(t) along two rays ({where})")
+    fig.tight_layout()
+    return save_png(fig, path)
+
+
 #: The experiments in report order: key -> (sweep file in ``sweeps/paper/``, view of its rows).
 EXPERIMENTS: dict[str, tuple[str, Callable[[Experiment], dict[str, Any]]]] = {
     "board": ("board.yaml", board_view),
     "bookend": ("bookend.yaml", lambda ex: object_view(ex, "§4.3 bookend (paper Figs. 5–6)")),
     "curved": ("curved.yaml", lambda ex: object_view(ex, "§4.3 curved object (paper Fig. 7)")),
     "near_vs_distant": ("near_vs_distant.yaml", near_vs_distant_view),
+    "first_stage": ("first_stage.yaml", first_stage_view),
+    "first_stage_corrected": ("first_stage_corrected.yaml", first_stage_corrected_view),
 }
 
 
@@ -325,7 +466,8 @@ REPORT_FILES: dict[str, str] = {
     "paper_reproduction.md": "reproduction-md",
     "provenance.json": "provenance",
     **{f"figures/{name}": "png" for name in ("fig3_board.png", "bookend_separation.png", "bookend_synthesis.png",
-                                             "curved_separation.png", "curved_synthesis.png", "near_vs_distant.png")},
+                                             "curved_separation.png", "curved_synthesis.png", "near_vs_distant.png",
+                                             "first_stage_ep.png")},
 }  # fmt: skip
 
 
@@ -348,6 +490,20 @@ def _profile(name: str, sweeps: Mapping[str, Any]) -> dict[str, Any]:
         "analyzer_angles_deg": [float(a) for a in get_dotted(scene, "capture.analyzer_angles_deg")],
         "distances_m": [float(v) for _, v in sweeps["near_vs_distant"].axes["lamp_distance"]],
     }
+
+
+#: Experiments that render into another one's cache (their scenes are a subset of its).
+SHARED_RENDERS = {"first_stage_corrected": "first_stage"}
+
+
+def _cache(key: str, folders: Mapping[str, Path], cache_dir: str | Path | None | bool) -> str | Path | None | bool:
+    """The render cache of experiment ``key``: ``cache_dir``, but with the default (True, each results
+    folder's ``renders/``) an experiment of :data:`SHARED_RENDERS` re-uses the other's renders."""
+    from .store import RENDERS
+
+    if cache_dir is True and key in SHARED_RENDERS and SHARED_RENDERS[key] in folders:
+        return folders[SHARED_RENDERS[key]] / RENDERS
+    return cache_dir
 
 
 def reproduce(
@@ -402,11 +558,12 @@ def reproduce(
     results: dict[str, Any] = {}
     command = "nearlight reproduce" + (" --quick" if quick else "") + f" --out {out}"
     for key, s in sweeps.items():
-        summary = run_sweep(s, folders[key], workers=workers, progress=progress, cache_dir=cache_dir, command=command)
+        cache = _cache(key, folders, cache_dir)
+        summary = run_sweep(s, folders[key], workers=workers, progress=progress, cache_dir=cache, command=command)
         if not summary.complete:
             raise UserError(f"{folders[key]}: sweep {s.name} is incomplete; run `nearlight reproduce` again")
         rows, _ = read_results(folders[key])
-        results[key] = EXPERIMENTS[key][1](Experiment(key, s, folders[key], rows, out, cache_dir))
+        results[key] = EXPERIMENTS[key][1](Experiment(key, s, folders[key], rows, out, cache))
     doc = {
         "nearlight_version": __version__,
         "code_version": code_version(),
@@ -432,6 +589,7 @@ def failures(doc: Mapping[str, Any]) -> list[str]:
     for name, ex in doc["experiments"].items():
         labelled = [(m, r) for m, r in ex.get("methods", {}).items()]
         labelled += [(f"{r['method']} at {r['lamp_distance_m']:g} m", r) for r in ex.get("rows", [])]
+        labelled += [(f"{r['method']} at {r['layout']}/{r['jitter']}", r) for r in ex.get("samples", [])]
         lines += [f"{name}: {label}: {r['error']}" for label, r in labelled if r["status"] != "ok"]
     return lines
 

@@ -28,7 +28,7 @@ def test_report_json_and_figures_exist(quick_report, capsys):
     md = (out / "paper_reproduction.md").read_text()
     assert set(doc["experiments"]) == set(EXPERIMENTS)
     for name, ex in doc["experiments"].items():
-        assert ex["figures"], name
+        assert ex["figures"] or name == "first_stage_corrected", name  # its numbers share §5 with first_stage
         for fig in ex["figures"]:
             assert (out / fig).stat().st_size > 10_000, fig  # a real picture, not an empty canvas
             assert f"]({fig})" in md, fig
@@ -56,7 +56,7 @@ def test_the_report_is_a_view_of_the_engines_rows(quick_report):
         assert complete and set(df["status"]) == {"ok"}, name
         assert (out / ex["results"] / "environment.json").is_file()
         assert ex["sweep"] == f"sweeps/paper/{EXPERIMENTS[name][0]}"
-        shown = ex["methods"].values() if "methods" in ex else ex["rows"]
+        shown = ex["methods"].values() if "methods" in ex else ex.get("rows") or ex["samples"]
         by_id = df.set_index("task_id")
         assert sorted(r["task_id"] for r in shown) == sorted(df["task_id"])
         for r in shown:
@@ -159,3 +159,78 @@ def test_against_a_reference_of_another_profile_is_refused_before_work(quick_rep
     assert main(["reproduce", "--quick", "--quiet", "--out", str(out), "--against", str(ref)]) == 2
     err = capsys.readouterr().err.strip()
     assert "profile 'full', this run is 'quick'" in err and "\n" not in err and not out.exists()
+
+
+def test_first_stage_is_a_distribution_over_layouts_and_jitter(quick_report):
+    # §4.1's first stage over the quick profile's layouts × jitters: one sample per (layout, jitter)
+    # and method, each distribution made of exactly those samples, and every number of the §5
+    # tables in the JSON and printed from it.
+    import numpy as np
+
+    from nearlight.evaluation.reproduce import paper_first_stage_pct
+
+    out, doc = quick_report
+    md = (out / "paper_reproduction.md").read_text()
+    assert paper_first_stage_pct() == pytest.approx(8.9, abs=0.05)  # |(11.81, 2.16, 3.051) - (13, 2, 3)| / |(13, 2, 3)|
+    for key in ("first_stage", "first_stage_corrected"):
+        ex = doc["experiments"][key]
+        labels = _labels(key)
+        assert list(ex["distributions"]) == labels
+        assert len(ex["samples"]) == len(ex["layouts"]) * len(ex["jitters"]) * len(labels)
+        for m, d in ex["distributions"].items():
+            errors = [r["lamp_position_error_pct"] for r in ex["samples"] if r["method"] == m]
+            assert d["all"]["n"] == len(errors) and d["all"]["failed"] == 0
+            assert d["all"]["median"] == pytest.approx(float(np.median(errors)))
+            assert d["all"]["reference_percentile"] == pytest.approx(100 * np.mean(np.array(errors) <= 8.9), abs=0.1)
+            assert sum(h["n"] for h in d["halves"]) == len(errors)
+            assert d["kind"].split()[0] in ("PRINTED", "ORACLE", "DEPARTURE", "printed")
+            assert f"| `{m}` | {d['kind']} | {d['all']['n']} | {d['all']['median']:.1f} |" in md
+    fid = doc["experiments"]["first_stage"]["fidelity"]
+    for r in fid["t_star_curve"]["rows"]:
+        assert f"| {r['s']:g} | {r['t_ratio']:.3f} |" in md
+    for r in fid["ward_bias"]["rows"]:
+        assert f"{100 * r['ward_bias']:+.1f} %" in md
+    for r in fid["ep_flatness"]["rows"]:
+        assert f"{r['three_plus_ep']:.2e}" in md
+    # the ORACLE's ray starts at the true mirror point: on this board it is far better than the peak's
+    d = doc["experiments"]["first_stage"]["distributions"]
+    assert d["paper-init (ORACLE mirror point)"]["all"]["median"] < d["paper-init"]["all"]["median"]
+    assert "first_stage_ep.png" in " ".join(doc["experiments"]["first_stage"]["figures"])
+    # the corrected variants' scenes are first_stage's: rendered once, in first_stage's cache
+    corrected = out / doc["experiments"]["first_stage_corrected"]["results"]
+    assert not any((corrected / "renders").glob("*")) and any((out / doc["experiments"]["first_stage"]["results"] / "renders").iterdir())
+
+
+def test_check_covers_the_first_stage_tables(quick_report):
+    from nearlight.evaluation.reproduce_check import check
+
+    _, doc = quick_report
+    moved = json.loads(json.dumps(doc))
+    ex = moved["experiments"]["first_stage"]
+    ex["distributions"]["paper-init"]["all"]["p90"] += 0.005  # within 0.01 points
+    assert check(moved, doc)[1] == 0
+    ex["distributions"]["paper-init"]["all"]["p90"] += 0.02
+    ex["fidelity"]["t_star_curve"]["rows"][1]["t_ratio"] += 1e-3  # one 1-mm grid step
+    moved["experiments"]["first_stage_corrected"]["samples"][0]["lamp_position_error_pct"] += 1.0
+    lines, misses = check(moved, doc)
+    assert misses == 3, lines
+    assert any("first_stage: paper-init: all: p90" in line for line in lines)
+    assert any("t_star_curve row 1: t_ratio" in line for line in lines)
+    assert any(line.startswith("  first_stage_corrected: ") and "lamp_position_error_pct" in line for line in lines)
+
+
+def test_distribution_counts_failures_above_every_error():
+    from nearlight.evaluation.paper_fidelity import distribution
+
+    d = distribution([1.0, 2.0, 3.0, float("nan"), float("nan")], reference=2.0)
+    assert d["n"] == 5 and d["failed"] == 2
+    assert d["min"] == 1.0 and d["median"] == 3.0 and d["p90"] is None and d["max"] is None  # NaN sorts as +inf
+    assert d["reference_percentile"] == 40.0  # 1 and 2 are at most the reference; the failure is not
+    assert distribution([5.0], reference=1.0)["reference_percentile"] == 0.0
+    # without failures the quantiles are numpy's linear percentiles
+    import numpy as np
+
+    x = np.random.default_rng(0).random(24) * 50
+    d = distribution(x, reference=8.9)
+    for key, p in (("p10", 10), ("p25", 25), ("median", 50), ("p75", 75), ("p90", 90), ("min", 0), ("max", 100)):
+        assert d[key] == pytest.approx(float(np.percentile(x, p)), rel=1e-12)
