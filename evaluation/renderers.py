@@ -146,6 +146,10 @@ class Renderer:
         """Render ``scene`` into the cache if it is not there; True if it rendered."""
         return False
 
+    def renders_per_seed(self, scene: dict) -> bool:
+        """Whether the seed changes the render itself (a camera that moves per shot), not only what follows it."""
+        return False
+
     def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
         """The noise-free capture of ``scene``."""
         raise NotImplementedError
@@ -269,8 +273,12 @@ class MitsubaRenderer(Renderer):
         except UserError as exc:
             raise UserError(f"{where}: {exc}") from None
 
+    def renders_per_seed(self, scene: dict) -> bool:
+        return get_dotted(scene, "camera.jitter_px", 0.0) > 0
+
     def render_key(self, scene: dict) -> str:
-        """The generator's render hash (noise, seed and analyzer angles do not change a render)."""
+        """The generator's render hash (noise and analyzer angles do not change a render; the seed only
+        through ``camera.jitter_px``)."""
         from ..generator.render import render_key
 
         return render_key(self._scene(scene))

@@ -244,9 +244,14 @@ def load_sweep(
         range_noise = float(chosen["range_noise"][1]) if "range_noise" in chosen else 0.0
         noisy = seed_matters(renderer, scene, noise, range_noise)
         for seed in seeds if noisy else seeds[:1]:
+            shot, shot_key = scene, key
+            if renderer.renders_per_seed(scene):  # the seed moves the camera: a render per shot
+                shot = copy.deepcopy(scene)
+                set_dotted(shot, "capture.seed", seed, where=f"{path}: seeds")
+                shot_key = renderer.render_key(shot)
             for m in methods:
-                tid = _hash([spec.renderer, scene, noise, range_noise, seed, m.label, m.method, m.options])
-                tasks.append(Task(len(tasks), tid, config, scene, key, noise, range_noise, seed, m, noisy))
+                tid = _hash([spec.renderer, shot, noise, range_noise, seed, m.label, m.method, m.options])
+                tasks.append(Task(len(tasks), tid, config, shot, shot_key, noise, range_noise, seed, m, noisy))
     return Sweep(spec.name, path, renderer, axes, seeds, methods, tasks, spec.crlb, profile)
 
 
@@ -333,8 +338,9 @@ def _check_axis_value(path: str, name: str, label: Any, value: Any) -> None:
 
 def seed_matters(renderer: Renderer, scene: dict, noise: Any, range_noise: float) -> bool:
     """Whether a configuration's captures change with the seed: camera or range noise, or (generator
-    scenes) a per-shot rig nuisance of the scene or its ``realism`` profile (analyzer jitter, lamp flicker)."""
-    if noise is not None or range_noise > 0:
+    scenes) a per-shot rig nuisance of the scene or its ``realism`` profile (analyzer jitter, lamp flicker),
+    or a camera that moves per shot (``camera.jitter_px``)."""
+    if noise is not None or range_noise > 0 or renderer.renders_per_seed(scene):
         return True
     if renderer.name != "mitsuba":
         return False

@@ -68,7 +68,7 @@ def sensor_dict(mi: ModuleType, scene: Scene) -> dict:
         "type": "perspective",
         "fov": cam.fov_x_deg,
         "fov_axis": "x",
-        "to_world": mi.ScalarTransform4f().look_at(origin=cam.position, target=cam.look_at, up=cam.up),
+        "to_world": mi.ScalarTransform4f().look_at(origin=cam.position, target=cam.target(scene.capture.seed), up=cam.up),
         "film": {
             "type": "hdrfilm",
             "width": cam.width,
@@ -311,11 +311,16 @@ def lamp_inside(mi: ModuleType, mscene: Any, position: Any) -> bool:
 
 def render_key(scene: Scene) -> str:
     """Hash of everything the clean render depends on (not noise, seed, angles, nor the nuisances applied after
-    rendering); lamp nuisances at their off values are left out, so a scene without them keeps its v1 key."""
+    rendering; the camera's sub-pixel shift of this seed, not the seed); lamp nuisances and the camera shift at
+    their off values are left out, so a scene without them keeps its v1 key."""
     doc = scene.model_dump(mode="json")
     default_lamp = LampSpec(position=scene.lamp.position).model_dump(mode="json")
     unused = {"samples"} if scene.lamp.radius == 0 else set()  # a point lamp is not sampled
     doc["lamp"] = {k: v for k, v in doc["lamp"].items() if k in LAMP_V1_KEYS or (v != default_lamp[k] and k not in unused)}
+    shift = scene.camera.shift_for(scene.capture.seed)  # what the seed does to the render, and only that
+    doc["camera"] = {k: v for k, v in doc["camera"].items() if k not in ("shift_px", "jitter_px")}
+    if shift != (0.0, 0.0):
+        doc["camera"]["shift_px"] = list(shift)
     cap = doc["capture"]
     relevant = {
         "version": RENDER_VERSION,

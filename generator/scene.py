@@ -57,6 +57,10 @@ class CameraSpec(_Model):
     up: Vec3 = (0.0, 0.0, 1.0)
     fov_x_deg: Annotated[float, Field(gt=0, lt=180)] = 40.0
     resolution: tuple[Annotated[int, Field(gt=0, le=16384)], Annotated[int, Field(gt=0, le=16384)]] = (640, 480)
+    #: Sub-pixel turn of the camera: the optical axis through image position centre + (dx, dy) px.
+    shift_px: tuple[Annotated[float, Field(ge=-0.5, le=0.5)], Annotated[float, Field(ge=-0.5, le=0.5)]] = (0.0, 0.0)
+    #: Per-shot shift amplitude a (px): shot ``capture.seed`` adds the R2 point of index seed + 1, in [-a, a)².
+    jitter_px: Annotated[float, Field(ge=0, le=0.5)] = 0.0
 
     @model_validator(mode="after")
     def _geometry(self) -> CameraSpec:
@@ -67,6 +71,23 @@ class CameraSpec(_Model):
             raise ValueError("up must not be parallel to the viewing direction (or zero)")
         return self
 
+    def shift_for(self, seed: int) -> tuple[float, float]:
+        """The image shift of shot ``seed``: ``shift_px`` plus the jitter draw (:func:`r2_point`), pixels."""
+        if self.jitter_px == 0:
+            return self.shift_px
+        u, v = r2_point(seed + 1)
+        return (self.shift_px[0] + self.jitter_px * (2 * u - 1), self.shift_px[1] + self.jitter_px * (2 * v - 1))
+
+    def target(self, seed: int) -> Vec3:
+        """Where shot ``seed`` looks: ``look_at``, or the point that applies :meth:`shift_for` (metres)."""
+        shift = self.shift_for(seed)
+        if shift == (0.0, 0.0):
+            return self.look_at
+        from ..physics.camera import shifted_target
+
+        t = shifted_target(self.position, self.look_at, self.up, self.fov_x_deg, self.width, self.height, shift)
+        return (float(t[0]), float(t[1]), float(t[2]))
+
     @property
     def width(self) -> int:
         return self.resolution[0]
@@ -74,6 +95,13 @@ class CameraSpec(_Model):
     @property
     def height(self) -> int:
         return self.resolution[1]
+
+
+def r2_point(n: int) -> tuple[float, float]:
+    """Point ``n`` of the R2 low-discrepancy sequence in [0, 1)² (Roberts 2018: ``frac(½ + n·(1/g, 1/g²))``,
+    g the plastic number): successive shots fill the pixel evenly, so a few seeds already span it."""
+    g = 1.32471795724474602596
+    return ((0.5 + n / g) % 1.0, (0.5 + n / g**2) % 1.0)
 
 
 class _Placed(_Model):

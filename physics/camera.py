@@ -42,13 +42,61 @@ def look_at_matrix(origin: Any, target: Any, up: Any = (0.0, 0.0, 1.0)) -> np.nd
 
 def camera_rays(to_world: np.ndarray, width: int, height: int, fov_x_deg: float) -> np.ndarray:
     """Unit ray directions through pixel centres, shape ``(H, W, 3)`` (world frame)."""
+    return pixel_ray(to_world, (np.arange(width) + 0.5)[None, :], (np.arange(height) + 0.5)[:, None],
+                     width, height, fov_x_deg)  # fmt: skip
+
+
+def pixel_ray(to_world: np.ndarray, col: Any, row: Any, width: int, height: int, fov_x_deg: float) -> np.ndarray:
+    """Unit ray directions through image positions ``(col, row)`` (pixels, centres at ``k + 0.5``), world frame.
+
+    Parameters
+    ----------
+    to_world : ndarray, shape (4, 4)
+    col, row : float or ndarray
+        Image coordinates, broadcast together (shape ``S``).
+    width, height : int
+    fov_x_deg : float
+
+    Returns
+    -------
+    ndarray, shape ``S + (3,)``
+    """
     tan_x = np.tan(np.radians(fov_x_deg) / 2.0)
     tan_y = tan_x * height / width
-    u = (np.arange(width) + 0.5) / width * 2.0 - 1.0  # -1 at the left edge
-    v = 1.0 - (np.arange(height) + 0.5) / height * 2.0  # +1 at the top edge
+    u = np.asarray(col, float) / width * 2.0 - 1.0  # -1 at the left edge
+    v = 1.0 - np.asarray(row, float) / height * 2.0  # +1 at the top edge
     left, up, forward = to_world[:3, 0], to_world[:3, 1], to_world[:3, 2]
-    d = forward + (-u[None, :, None] * tan_x) * left + (v[:, None, None] * tan_y) * up
+    d = forward + (-u[..., None] * tan_x) * left + (v[..., None] * tan_y) * up
     return normalize(d)
+
+
+def shifted_target(position: Any, look_at: Any, up: Any, fov_x_deg: float, width: int, height: int,
+                   shift_px: Any) -> np.ndarray:  # fmt: skip
+    """The look-at point that turns the camera about its centre onto image position ``centre + shift_px``.
+
+    The new optical axis is the old camera's ray through ``(W/2 + dx, H/2 + dy)`` (``dx`` to the right,
+    ``dy`` down, pixels), so the scene moves in the image by about ``(−dx, −dy)`` px: a sub-pixel shift of
+    where the pixel grid falls on the scene (``camera.shift_px``, ``camera.jitter_px``).
+
+    Parameters
+    ----------
+    position, look_at, up : array_like, shape (3,)
+        The camera as placed (world frame, metres).
+    fov_x_deg : float
+    width, height : int
+    shift_px : array_like, shape (2,)
+        ``(dx, dy)``, pixels.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        A point on the new optical axis, as far from ``position`` as ``look_at`` is (metres).
+    """
+    position = np.asarray(position, float)
+    m = look_at_matrix(position, look_at, up)
+    dx, dy = (float(x) for x in shift_px)
+    d = pixel_ray(m, width / 2.0 + dx, height / 2.0 + dy, width, height, fov_x_deg)
+    return position + np.linalg.norm(np.subtract(look_at, position)) * d
 
 
 def project(d: np.ndarray, to_world: np.ndarray, width: int, height: int, fov_x_deg: float

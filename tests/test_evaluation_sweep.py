@@ -188,6 +188,25 @@ def test_realism_axis_and_per_shot_nuisances_run_every_seed():
     assert by[("none", 0.1)][0].render_key == by[("none", 0.0)][0].render_key
 
 
+def test_a_jittering_camera_renders_once_per_seed():
+    """`camera.jitter_px` moves the camera per shot: a noise-free configuration runs every seed, each seed
+    its own render (the task's scene carries it as `capture.seed`, so `nearlight render` with that seed
+    makes the same capture); without jitter nothing changes."""
+    from pathlib import Path
+
+    doc = yaml.safe_load((Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml").read_text())
+    doc.update(seeds=[2, 5, 7], methods=["full", "distant"], axes={"camera.jitter_px": [0.0, 0.5]})
+    sweep = load_sweep(doc, check_methods=False)
+    still = [t for t in sweep.tasks if t.config["camera.jitter_px"] == 0.0]
+    moving = [t for t in sweep.tasks if t.config["camera.jitter_px"] == 0.5]
+    assert [t.seed for t in still] == [2, 2] and not any(t.noisy for t in still)
+    assert [t.seed for t in moving] == [2, 2, 5, 5, 7, 7] and all(t.noisy for t in moving)
+    assert [t.scene["capture"]["seed"] for t in moving] == [t.seed for t in moving]
+    keys = [t.render_key for t in moving]
+    assert keys[0] == keys[1] and len(set(keys)) == 3 and still[0].render_key not in keys
+    assert len({t.task_id for t in sweep.tasks}) == len(sweep.tasks)
+
+
 def test_an_object_axis_of_another_type_keeps_only_the_placement():
     from pathlib import Path
 
