@@ -262,6 +262,7 @@ def object_view(ex: Experiment, title: str) -> dict[str, Any]:
         **ex.header(),
         "truth": _truth(seen),
         "camera_noise": task.noise,
+        "realism": str(task.scene.get("realism", "none")),
         "seed": task.seed,
         "methods": {r["method"]: _method_row(r, seen.truth) for r in rows},
         "figures": figs,

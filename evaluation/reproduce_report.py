@@ -100,12 +100,22 @@ def object_section(doc: dict[str, Any], key: str, heading: str) -> str:
 paper's real captures ({noise['bits']}-bit, full well {noise['full_well']:.0f} e⁻, read noise
 {noise['read_noise']:g} e⁻, brightest pixel at 90 % of the full well; noise seed {ex['seed']}), separated from the
 analyzer stack (figures: the per-pixel cos 2θ fit; each method: its default separation).
-Lamp positions in metres, world frame.
+{_rig(ex.get("realism", "none"))}Lamp positions in metres, world frame.
 {note}
 {_table(["", "lamp (m)", "error (mm)", "error (% of distance)", "σ", "Ks", "σ error", "Ks error"], rows)}
 
 {_figures(ex)}
 """
+
+
+def _rig(realism: str) -> str:
+    if realism == "none":
+        return "An ideal rig (no nuisances). "
+    return (f"The rig is the `{realism}` profile (docs/scene-files.md, \"Nuisances\"): a lamp of finite size with a "
+            "cos-power beam behind a leaky polarizer, an analyzer with finite extinction and angle errors, "
+            "vignetting, lamp flicker, range holes on the highlight, misregistered and quantised range, a "
+            "calibration error of the camera pose; so no method sees exactly its own model, as on the paper's "
+            "real captures. ")
 
 
 def distance_section(doc: dict[str, Any]) -> str:
