@@ -95,8 +95,7 @@ def task_captures(sweep: Sweep, task: Task, out: str | Path, cache_dir: str | Pa
     """The noise-free capture of a finished task, from the render cache it ran with (``cache_dir``
     as :func:`run_sweep` takes it; True: its results folder ``out``'s, a cache hit), and the
     capture its estimator saw (the task's noise with its seed)."""
-    cache = Path(out) / RENDERS if cache_dir is True else (Path(cache_dir) if cache_dir else None)
-    clean = sweep.renderer.render(task.scene, cache_dir=cache)
+    clean = sweep.renderer.render(task.scene, cache_dir=_cache_folder(out, cache_dir))
     return clean, noisy_capture(clean, task_payload(task, sweep))
 
 
@@ -225,6 +224,11 @@ class _Dask:
             self.client.close()
 
 
+def _cache_folder(out: str | Path, cache_dir: str | Path | None | bool) -> Path | None:
+    """The render cache a sweep in ``out`` uses: True = its own ``renders/``, a path, or None (no cache)."""
+    return Path(out) / RENDERS if cache_dir is True else (Path(cache_dir) if cache_dir else None)
+
+
 def sweep_inputs(sweep: Sweep) -> list[Path]:
     """The files a sweep read: its sweep file and the scene file it names (when they are files)."""
     source = Path(sweep.source)
@@ -302,7 +306,8 @@ def run_sweep(
     done = store.done_ids()
     todo = [t for t in sweep.tasks if t.task_id not in done]
     version = code_version()
-    cache_dir = str(store.cache_dir if cache_dir is True else cache_dir) if cache_dir else None
+    cache = _cache_folder(out, cache_dir)
+    cache_dir = str(cache) if cache is not None else None
     renderer = sweep.renderer
     executor = _executor(workers, scheduler)
     rendered = failed = 0

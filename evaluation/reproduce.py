@@ -145,15 +145,20 @@ class Experiment:
 
     def header(self) -> dict[str, Any]:
         """Where the experiment's numbers come from: sweep file, results folder, scene, code versions."""
-        from ..files.yamlfile import load_yaml_file
+        from .engine import sweep_inputs
 
-        source = Path(self.sweep.source)
-        scene = load_yaml_file(source, what="sweep file")["scene"]
+        source, *scene_file = sweep_inputs(self.sweep)
         root = sweeps_folder().parent.parent
+        if scene_file:
+            scene = str(scene_file[0].resolve().relative_to(root))
+        else:  # an inline scene
+            from ..files.yamlfile import load_yaml_file
+
+            scene = load_yaml_file(source, what="sweep file")["scene"]
         return {
             "sweep": str(source.relative_to(root)),
             "results": str(self.folder.relative_to(self.report_dir)),
-            "scene": str((source.parent / scene).resolve().relative_to(root)) if isinstance(scene, str) else scene,
+            "scene": scene,
             "code_versions": sorted(set(self.rows["code_version"].astype(str))),
         }
 

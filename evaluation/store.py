@@ -81,11 +81,6 @@ class ResultStore:
             text = json.dumps(envs, indent=2) + "\n"
             atomic_write(self.out / ENVIRONMENT, lambda tmp: Path(tmp).write_text(text))
 
-    @property
-    def cache_dir(self) -> Path:
-        """The render cache folder."""
-        return self.out / RENDERS
-
     def done_ids(self) -> set[str]:
         """Ids of the tasks whose row is on disk."""
         return {p.stem for p in (self.out / PARTS).glob("*.parquet")}
