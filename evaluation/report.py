@@ -26,7 +26,7 @@ import pandas as pd
 from ..errors import UserError
 from .environment import code_version
 from .metrics import METRICS
-from .one_at_a_time import LABEL_AXES, label_table, markdown_tables, plot_heatmap
+from .one_at_a_time import LABEL_AXES, SPLIT, label_table, markdown_tables, plot_heatmap
 from .provenance import record
 from .store import MANIFEST, read_manifest, read_results
 from ..files.figures import save_png
@@ -206,7 +206,7 @@ def write_report(
     if tables:
         _write_text(folder / "one_at_a_time.csv", pd.concat(tables, ignore_index=True).to_csv(index=False))
     for a, table in zip(labelled, tables):
-        pooled = [x for x in varied if x not in (a, "object")]
+        pooled = [x for x in varied if x not in (a, SPLIT)]
         md += [f"## Which imperfection breaks which method ({a})", "",
                f"Median (90th percentile where a label ran several seeds) of lamp_position_error_pct "
                f"[{METRICS['lamp_position_error_pct']}] per {a} label and method"

@@ -13,7 +13,7 @@ import yaml
 
 from nearlight.evaluation.engine import run_sweep
 from nearlight.evaluation.one_at_a_time import label_table, quantile_failures_worst
-from nearlight.evaluation.report import write_report
+from nearlight.evaluation.report import report_files, write_report
 from nearlight.evaluation.store import read_results
 from nearlight.evaluation.sweep import load_sweep
 
@@ -132,3 +132,10 @@ def test_the_report_of_a_set_sweep_has_the_table_and_the_heatmap(fakes, tmp_path
     # broken: every run failed, in every row; blind: those of the far lamp, beside broken's
     assert section.count("3/3 failed") == 2 * (3 + 1) and section.count("| 3/3 failed | 3/3 failed |") == 2
     assert "](one_at_a_time_set.png)" in section
+
+
+def test_a_realism_axis_gets_the_view_too_and_no_line_plot_through_labels():
+    files = report_files(["realism", "lamp_distance"], ["realism"])
+    assert files["one_at_a_time_realism.png"] == "png" and files["one_at_a_time.csv"] == "report-csv"
+    assert "error_vs_realism.png" not in files and "error_vs_lamp_distance.png" in files
+    assert not any(name.startswith("one_at_a_time") for name in report_files(["lamp_distance"]))
