@@ -8,7 +8,11 @@ Writes into ``DIR/report/``:
 - ``crlb.csv``: per configuration and method, the RMSE over seeds of the lamp position and σ
   beside their Cramér–Rao bounds and the ratio RMSE / bound (≥ 1 for an unbiased estimator);
 - ``error_vs_<axis>.png``: median error (line) and 90th percentile (band) against each
-  axis with several values, one line per method.
+  axis with several values, one line per method (not for an axis of named configurations,
+  ``set`` or ``realism``: a line through labels in no order says nothing);
+- for each ``set`` or ``realism`` axis, "which imperfection breaks which method"
+  (:mod:`nearlight.evaluation.one_at_a_time`): ``one_at_a_time.csv`` (every such axis, long
+  form) and ``one_at_a_time_<axis>.png`` (labels × methods heatmap), the tables in ``summary.md``.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import pandas as pd
 from ..errors import UserError
 from .environment import code_version
 from .metrics import METRICS
+from .one_at_a_time import LABEL_AXES, SPLIT, label_table, markdown_tables, plot_heatmap
 from .provenance import record
 from .store import MANIFEST, read_manifest, read_results
 from ..files.figures import save_png
@@ -124,16 +129,27 @@ def plot_axis(df: pd.DataFrame, axis: str, path: Path) -> None:
     save_png(fig, path, dpi=110)
 
 
-def report_files(varied: list[str]) -> dict[str, str]:
-    """``{file name: kind}`` of every file a report writes (kinds: :data:`nearlight.files.outputs.KINDS`)."""
+def report_files(varied: list[str], labelled: list[str] = ()) -> dict[str, str]:
+    """``{file name: kind}`` of every file a report writes (kinds: :data:`nearlight.files.outputs.KINDS`).
+
+    ``varied``: the axes with several values; ``labelled``: the axes of named configurations
+    (:data:`~nearlight.evaluation.one_at_a_time.LABEL_AXES`) the sweep has.
+    """
     files = {"summary.md": "report-md", "overall.csv": "report-csv", "by_axis.csv": "report-csv",
              "crlb.csv": "report-csv"}  # fmt: skip
-    files.update({_png_name(a): "png" for a in varied})
+    files.update({_png_name(a): "png" for a in varied if a not in LABEL_AXES})
+    if labelled:
+        files["one_at_a_time.csv"] = "report-csv"
+        files.update({_heatmap_name(a): "png" for a in labelled})
     return files
 
 
 def _png_name(axis: str) -> str:
     return f"error_vs_{axis.replace('.', '_')}.png"
+
+
+def _heatmap_name(axis: str) -> str:
+    return f"one_at_a_time_{axis}.png"
 
 
 def write_report(
@@ -161,8 +177,9 @@ def write_report(
     info = read_manifest(results_dir) if manifest.exists() else {}
     axes = [a for a in info.get("axes", []) if isinstance(a, str) and a in df.columns]
     varied = [a for a in axes if df[a].nunique() > 1]
+    labelled = [a for a in axes if a in LABEL_AXES]
     folder = Path(out) if out is not None else results_dir / "report"
-    check_files_in(folder, report_files(varied))
+    check_files_in(folder, report_files(varied, labelled))
     make_folder(folder, what="report folder")
 
     overall = stats(df, ["method"])
@@ -185,12 +202,29 @@ def write_report(
            "Cells: median (90th percentile) over successful tasks. Units: "
            + "; ".join(f"{m} [{METRICS[m]}]" for m in HEADLINE) + ".", "",
            "## Overall", "", _md(counts.reset_index()), "", _md(_wide(overall, ["method"])), ""]
+    tables = [label_table(df, a) for a in labelled]
+    if tables:
+        _write_text(folder / "one_at_a_time.csv", pd.concat(tables, ignore_index=True).to_csv(index=False))
+    for a, table in zip(labelled, tables):
+        pooled = [x for x in varied if x not in (a, SPLIT)]
+        md += [f"## Which imperfection breaks which method ({a})", "",
+               f"Median (90th percentile where a label ran several seeds) of lamp_position_error_pct "
+               f"[{METRICS['lamp_position_error_pct']}] per {a} label and method"
+               + (f", pooled over {', '.join(pooled)}" if pooled else "") + ". A failed task (an error, or no "
+               "usable estimate: a NaN error) counts as worse than any error: a cell reads `k/n failed` when "
+               "k of its n runs failed and that is half or more (the median is a failure); fewer failures are "
+               "counted after the median (`, k/n failed`).", ""]
+        for obj, wide in markdown_tables(table, a):
+            md += ([f"### {obj}", ""] if obj else []) + [_md(wide), ""]
+        plot_heatmap(table, a, folder / _heatmap_name(a))
+        md += [f"![which imperfection breaks which method ({a})]({_heatmap_name(a)})", ""]
     for a in varied:
         st = stats(df, [a, "method"])
         md += [f"## By {a}", "", _md(_wide(st, [a, "method"])), ""]
-        png = _png_name(a)
-        plot_axis(df, a, folder / png)
-        md += [f"![error vs {a}]({png})", ""]
+        if a not in LABEL_AXES:
+            png = _png_name(a)
+            plot_axis(df, a, folder / png)
+            md += [f"![error vs {a}]({png})", ""]
     if not bound.empty:
         md += ["## Cramér–Rao bounds (Gaussian camera noise)", "",
                "RMSE over seeds of each method beside the bound for the same configuration; ratio = RMSE / bound "

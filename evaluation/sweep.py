@@ -42,6 +42,7 @@ AXES: dict[str, tuple[bool, str]] = {
     "lamp_distance": (False, "lamp distance from the object centre, m, moving the lamp along that ray"),
     "noise": (True, "camera noise settings passed to the generator's add_camera_noise (null: none)"),
     "range_noise": (True, "Gaussian noise on the range image P, standard deviation in m (0: none)"),
+    "set": (False, "one-at-a-time design: label -> {dotted.scene.key: value} applied to the scene ({}: the base scene)"),
 }
 #: Order in which physical axes are applied (bsdf before roughness, lamp distance last).
 _APPLY_ORDER = ("object", "bsdf", "polarization", "roughness", "analyzer_angles")
@@ -220,6 +221,8 @@ def load_sweep(
             raise UserError(
                 f"{path}: axes.{name}: unknown axis (expected one of {', '.join(AXES)} or a dotted scene key)"
             )
+        if name == "set":
+            _check_set_axis(renderer, base, path, axis_values[name])
         for label, value in values:
             _check_axis_value(path, name, label, value)
 
@@ -336,6 +339,30 @@ def _check_axis_value(path: str, name: str, label: Any, value: Any) -> None:
         raise UserError(f"{where} expected 'torrance_sparrow', 'ward' or a material mapping")
 
 
+def _check_set_axis(renderer: Renderer, base: dict, path: str, labels: Any) -> None:
+    """A ``set`` axis is ``{label: {dotted.key: value}}``; each label's scene must be one the renderer accepts,
+    and no two labels may set the same (they would be one configuration under two names)."""
+    if not isinstance(labels, dict):
+        raise UserError(f"{path}: axes.set: expected a mapping of labels to mappings of dotted scene keys")
+    seen: dict[str, str] = {}
+    for label, overrides in labels.items():
+        where = f"{path}: axes.set: {label!r}"
+        if not isinstance(overrides, dict) or not all(isinstance(k, str) for k in overrides):
+            raise UserError(f"{where}: expected a mapping of dotted scene keys")
+        same = seen.setdefault(_hash(overrides), label)
+        if same != label:
+            raise UserError(f"{where}: the same keys and values as {same!r}")
+        scene = copy.deepcopy(base)
+        _apply_set(scene, label, overrides, path)
+        renderer.validate(scene, where=where)
+
+
+def _apply_set(scene: dict, label: Any, overrides: dict[str, Any], path: str) -> None:
+    """Apply the overrides of label ``label`` of the ``set`` axis, as the dotted-key axes are applied."""
+    for key, value in overrides.items():
+        set_dotted(scene, key, copy.deepcopy(value), where=f"{path}: axes.set: {label!r}")
+
+
 def seed_matters(renderer: Renderer, scene: dict, noise: Any, range_noise: float) -> bool:
     """Whether a configuration's captures change with the seed: camera or range noise, or (generator
     scenes) a per-shot rig nuisance of the scene or its ``realism`` profile (analyzer jitter, lamp flicker),
@@ -357,6 +384,8 @@ def _physical_scene(renderer: Renderer, base: dict, chosen: dict[str, tuple[Any,
     for name, (_, value) in chosen.items():
         if "." in name or name == "realism":
             set_dotted(scene, name, copy.deepcopy(value), where=f"{path}: axes.{name}")
+    if "set" in chosen:
+        _apply_set(scene, *chosen["set"], path)
     if "lamp_distance" in chosen:
         renderer.apply_axis(scene, "lamp_distance", chosen["lamp_distance"][1], where=f"{path}: axes.lamp_distance")
     renderer.validate(scene, where=f"{path}: scene")
