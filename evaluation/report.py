@@ -12,7 +12,10 @@ Writes into ``DIR/report/``:
   ``set`` or ``realism``: a line through labels in no order says nothing);
 - for each ``set`` or ``realism`` axis, "which imperfection breaks which method"
   (:mod:`nearlight.evaluation.one_at_a_time`): ``one_at_a_time.csv`` (every such axis, long
-  form) and ``one_at_a_time_<axis>.png`` (labels × methods heatmap), the tables in ``summary.md``.
+  form) and ``one_at_a_time_<axis>.png`` (labels × methods heatmap), the tables in ``summary.md``;
+- when configurations without camera noise ran several seeds (per-shot draws: ``camera.jitter_px``,
+  analyzer jitter, lamp flicker), "luck" (:mod:`nearlight.evaluation.report_luck`): ``luck.csv``, the
+  spread over those seeds beside what each axis does, and ``luck_vs_axes.png``.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from ..errors import UserError
 from .environment import code_version
 from .metrics import METRICS
 from .one_at_a_time import LABEL_AXES, SPLIT, label_table, markdown_tables, plot_heatmap
+from .report_luck import LUCK_PNG, luck_table, plot_luck
 from .provenance import record
 from .store import MANIFEST, read_manifest, read_results
 from ..files.figures import save_png
@@ -129,11 +133,12 @@ def plot_axis(df: pd.DataFrame, axis: str, path: Path) -> None:
     save_png(fig, path, dpi=110)
 
 
-def report_files(varied: list[str], labelled: list[str] = ()) -> dict[str, str]:
+def report_files(varied: list[str], labelled: list[str] = (), luck: bool = False) -> dict[str, str]:
     """``{file name: kind}`` of every file a report writes (kinds: :data:`nearlight.files.outputs.KINDS`).
 
     ``varied``: the axes with several values; ``labelled``: the axes of named configurations
-    (:data:`~nearlight.evaluation.one_at_a_time.LABEL_AXES`) the sweep has.
+    (:data:`~nearlight.evaluation.one_at_a_time.LABEL_AXES`) the sweep has; ``luck``: whether the
+    luck section is written (:func:`~nearlight.evaluation.report_luck.luck_table` not empty).
     """
     files = {"summary.md": "report-md", "overall.csv": "report-csv", "by_axis.csv": "report-csv",
              "crlb.csv": "report-csv"}  # fmt: skip
@@ -141,6 +146,8 @@ def report_files(varied: list[str], labelled: list[str] = ()) -> dict[str, str]:
     if labelled:
         files["one_at_a_time.csv"] = "report-csv"
         files.update({_heatmap_name(a): "png" for a in labelled})
+    if luck:
+        files.update({"luck.csv": "report-csv", LUCK_PNG: "png"})
     return files
 
 
@@ -179,7 +186,8 @@ def write_report(
     varied = [a for a in axes if df[a].nunique() > 1]
     labelled = [a for a in axes if a in LABEL_AXES]
     folder = Path(out) if out is not None else results_dir / "report"
-    check_files_in(folder, report_files(varied, labelled))
+    luck = luck_table(df, axes)
+    check_files_in(folder, report_files(varied, labelled, luck=not luck.empty))
     make_folder(folder, what="report folder")
 
     overall = stats(df, ["method"])
@@ -225,6 +233,17 @@ def write_report(
             png = _png_name(a)
             plot_axis(df, a, folder / png)
             md += [f"![error vs {a}]({png})", ""]
+    if not luck.empty:
+        _write_text(folder / "luck.csv", luck.to_csv(index=False))
+        plot_luck(df, axes, folder / LUCK_PNG)
+        md += ["## Luck: the spread over seeds without camera noise", "",
+               "Configurations without camera or range noise that still ran several seeds draw something per "
+               "shot (where the pixel grid falls on the highlight: `camera.jitter_px`; analyzer jitter; lamp "
+               "flicker). `luck`: the max − min of lamp_position_error_pct over one configuration's seeds, median "
+               "and 90th percentile over configurations; `<axis> effect`: how far the method's median error "
+               "moves between that axis's values (max − min, median over the other axes' configurations). "
+               "Percentage points. A method whose luck is as large as the axes' effects is set by sampling luck, "
+               "not by what the sweep varies.", "", _md(luck, floatfmt=".3g"), "", f"![luck]({LUCK_PNG})", ""]
     if not bound.empty:
         md += ["## Cramér–Rao bounds (Gaussian camera noise)", "",
                "RMSE over seeds of each method beside the bound for the same configuration; ratio = RMSE / bound "

@@ -47,3 +47,29 @@ def test_no_noise_free_seeds_no_luck_section():
 def test_the_luck_figure_is_written(tmp_path):
     plot_luck(_rows(), AXES, tmp_path / "luck.png")
     assert (tmp_path / "luck.png").stat().st_size > 10_000
+
+
+@pytest.mark.render
+def test_a_jittered_sweep_report_has_the_luck_section(tmp_path):
+    """End to end: a tiny Mitsuba sweep whose camera jitters; the report writes the table and the figure,
+    and a sweep without jitter writes neither."""
+    from pathlib import Path
+
+    import yaml
+
+    from nearlight.evaluation.engine import run_sweep
+    from nearlight.evaluation.report import write_report
+    from nearlight.evaluation.sweep import load_sweep
+
+    doc = yaml.safe_load((Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml").read_text())
+    doc.update(seeds=3, methods=["distant"], axes={"lamp_distance": [0.3, 0.6]})
+    doc["set"] = {**doc.get("set", {}), "camera.resolution": [40, 30]}
+    for jitter, expect in ((0.5, True), (0.0, False)):
+        doc["set"]["camera.jitter_px"] = jitter
+        out = tmp_path / f"j{jitter}"
+        run_sweep(load_sweep(doc), out, workers=1, progress=False)
+        folder = write_report(out)
+        assert (folder / "luck.csv").is_file() == expect and (folder / "luck_vs_axes.png").is_file() == expect
+        assert ("## Luck" in (folder / "summary.md").read_text()) == expect
+    luck = pd.read_csv(tmp_path / "j0.5" / "report" / "luck.csv")
+    assert list(luck["configurations"]) == [2] and list(luck["seeds"]) == [3]
