@@ -220,7 +220,13 @@ def surface_geometry(capture: Capture) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
 
 def specular_image(capture: Capture, *, separation: str = "fit") -> np.ndarray:
-    """The capture's specular image ``[H, W, 3]``: given, or separated from the stack."""
+    """The capture's specular image ``[H, W, 3]``: given, or separated from the stack.
+
+    A stack is separated with the rig's extinction ratios (``capture.rig``,
+    :func:`~nearlight.estimator.separation.rig_correction`), so a calibrated
+    real analyzer or lamp polarizer gives the ideal rig's specular. A given
+    ``specular`` image is used as it is (whoever separated it owned that step).
+    """
     _check_shapes(capture)
     surface = capture.surface_mask
     if capture.specular is not None:
@@ -231,7 +237,10 @@ def specular_image(capture: Capture, *, separation: str = "fit") -> np.ndarray:
         if stack.size:
             k = int(np.argmin(stack[:, surface].min(axis=(1, 2)))) if surface.any() else 0
             _check_signal(capture.name, f"pol{k}", stack.transpose(1, 2, 0, 3), surface)
-        spec = separate(capture.stack, capture.analyzer_angles_deg, method=separation)
+        rig = capture.rig
+        spec = separate(capture.stack, capture.analyzer_angles_deg, method=separation,
+                        analyzer_extinction_ratio=rig.analyzer_extinction_ratio,
+                        lamp_extinction_ratio=rig.lamp_polarizer_extinction_ratio)
         spec, channel = spec[0], "pol<k>"
         if surface.any() and np.all(np.isfinite(spec[surface])):
             top = float(np.abs(stack[:, surface]).max())
