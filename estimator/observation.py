@@ -290,10 +290,12 @@ def fill_range_holes(P: np.ndarray, holes: np.ndarray, rays: np.ndarray, camera_
     plane (a board's hole is filled to float rounding), but on a surface of
     curvature radius R, at a distance d from the fitted pixels, a plane is
     off by O(d²/R) in position and O(d/R) in normal, a quadric only by
-    O(d⁴/R³) and O(d³/R³) (on the 0.15-m analytic sphere, with d ≈ 1.5 cm:
-    0.7 mm and 6° against 3 µm and 0.1°). The hole is surrounded by the
-    ring, so the quadric interpolates and its 6 coefficients are well
-    determined (about 50 ring pixels around a 3-px hole).
+    O(d⁴/R³) and O(d³/R³). Measured on the 0.15-m analytic sphere at
+    160×120 (holes of radius 2 and 4 px, d = 11 and 16 mm): a plane 0.25
+    and 0.55 mm, 1.7° and 3.4°; the quadric 0.16 and 0.84 µm, 0.002° and
+    0.006°. The hole is surrounded by the ring, so the quadric interpolates
+    and its 6 coefficients are well determined (about 50 ring pixels around
+    a 3-px hole).
 
     Parameters
     ----------
@@ -375,8 +377,10 @@ def surface_geometry(capture: Capture) -> tuple[np.ndarray, np.ndarray, np.ndarr
     capture are then derived from ``P`` with the holes filled
     (:func:`~nearlight.estimator.normals.normals_from_positions`), so that the
     measured pixels around a hole keep whole windows: a window cut by the
-    hole would give the normal at its off-centre centroid, off by about
-    ½ pixel footprint / curvature radius (0.5° on the 0.15-m analytic sphere).
+    hole would give the normal at its off-centre centroid, off by a fraction
+    of pixel footprint / curvature radius (measured next to holes of radius
+    2 and 4 px on the 0.15-m analytic sphere at 160×120: 0.24° and 0.61°,
+    against 0.012° with whole windows).
     """
     _check_shapes(capture)
     cam = np.asarray(capture.camera.position, dtype=float)
