@@ -243,8 +243,9 @@ def mirror_oracle_pixel(capture: Capture, obs: Observation) -> np.ndarray:
 
     Reads ``capture.truth["lamp_position"]`` (the only place in the
     estimators that does): α of the true lamp is smallest at the mirror
-    point; the located pixel (measured or filled) of least α, refined over interpolated P, N
-    (:func:`~nearlight.estimator.observation.surface_at`) to 1e-4 px.
+    point; the located pixel (measured or filled) of least α, refined over
+    interpolated P, N (:func:`~nearlight.estimator.observation.surface_at`)
+    to 1e-4 px.
 
     Raises
     ------

@@ -87,7 +87,7 @@ def rig_correction(specular: np.ndarray, diffuse: np.ndarray, *, analyzer_extinc
     ``½ [(1 + k_a) S0 + (1 − k_a)(S1 cos 2θ + S2 sin 2θ)]``
     (:func:`nearlight.physics.polarization.analyzer_stack`), i.e. the ideal
     analyzer's images of ``S' = ((1 + k_a) S0, (1 − k_a) S1, (1 − k_a) S2)``.
-    Every separation method is linear in the Stokes it sees, so it returns
+    Every separation method reads them as the ideal model of S', so it returns
     ``specular' = (1 − k_a) √(S1² + S2²)`` and ``specular' + diffuse' = S0'
     = (1 + k_a) S0``; dividing undoes it exactly (noise-free), from any
     set of angles.
@@ -120,13 +120,16 @@ def rig_correction(specular: np.ndarray, diffuse: np.ndarray, *, analyzer_extinc
     Raises
     ------
     UserError
-        An extinction ratio of 1: that filter does not polarize, so the
-        stack holds no specular signal to separate.
+        An extinction ratio of 1 (or below): that filter does not polarize,
+        so the stack holds no specular signal to separate.
     """
-    ka, kl = (0.0 if e is None else 1.0 / float(e) for e in (analyzer_extinction_ratio, lamp_extinction_ratio))
-    for name, k in (("analyzer_extinction_ratio", ka), ("lamp_polarizer_extinction_ratio", kl)):
-        if k >= 1.0:
-            raise UserError(f"rig.{name} = 1: that polarizer does not polarize, so there is no specular to separate")
+    ratios = {"analyzer_extinction_ratio": analyzer_extinction_ratio,
+              "lamp_polarizer_extinction_ratio": lamp_extinction_ratio}
+    for name, e in ratios.items():
+        if e is not None and not float(e) > 1.0:
+            raise UserError(f"rig.{name} = {e}: that polarizer does not polarize (ε must exceed 1), "
+                            "so there is no specular to separate")
+    ka, kl = (0.0 if e is None else 1.0 / float(e) for e in ratios.values())
     if ka == 0.0 and kl == 0.0:
         return specular, diffuse
     S0 = (specular + diffuse) / (1.0 + ka)

@@ -64,7 +64,7 @@ def test_leaky_lamp_polarizer_is_undone_in_ideal_mode(rng, eps):
 def test_an_extinction_ratio_of_one_is_refused():
     S = _stokes(np.random.default_rng(0))
     angles = np.array([0.0, 45.0, 90.0, 135.0])
-    with pytest.raises(UserError, match=r"rig\.analyzer_extinction_ratio = 1"):
+    with pytest.raises(UserError, match=r"rig\.analyzer_extinction_ratio = 1\.0: that polarizer does not polarize"):
         separate(analyzer_stack(S, angles), angles, analyzer_extinction_ratio=1.0)
 
 
