@@ -47,6 +47,11 @@ A distant light has no position: the reported ``lamp_position`` is the
 peak's surface point plus ``l`` times the camera–highlight distance (the
 distance at which the viewer is also assumed "distant"), and ``light_model``
 holds both directions.
+
+Range holes: the fit uses only specular pixels with range (finite ``P``);
+the peak, its normal (the start's mirror direction) and its surface point
+(the anchor above) may be a hole's filled pixel
+(:func:`~nearlight.estimator.observation.fill_range_holes`).
 """
 
 from __future__ import annotations

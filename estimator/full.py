@@ -9,6 +9,11 @@ closed-form specular radiance of docs/physics.md,
 lamp intensity), to the specular image over all seven parameters
 ``(x, y, z, Ks_R, Ks_G, Ks_B, σ)``, with a robust loss and a sandwich
 covariance (see :func:`~nearlight.estimator.fitting.robust_fit`).
+
+The fit uses only pixels with range (finite ``P``); a range hole on the
+highlight takes its pixels out of the fit but not out of the start, whose
+ray begins at the hole's filled point
+(:func:`~nearlight.estimator.observation.fill_range_holes`).
 """
 
 from __future__ import annotations

@@ -32,6 +32,14 @@ steps are implemented as what they are meant to do rather than as printed:
   capture), and a step that would increase E_energy is halved until it does
   not (so E_energy never increases).
 
+A range hole on the highlight (no ``P`` at the brightest pixels,
+``nuisances.range.holes_shiny_above``) does not move the peak or the ray:
+the hole's surface points and normals come from a quadric fitted to the
+range around it (:func:`~nearlight.estimator.observation.fill_range_holes`),
+for every origin; E_p, the regression and the AM use only pixels with
+range, so t* moves with the pixels the hole takes away
+(``tests/test_estimator_holes.py``).
+
 Step 6 searches ``{t − Δt, t, t + Δt}``, keeping t on ties. The AM runs
 fast (:func:`alternating_minimisation`) and walks exactly the steps of its
 plain transcription (:func:`alternating_minimisation_reference`).
@@ -235,8 +243,9 @@ def mirror_oracle_pixel(capture: Capture, obs: Observation) -> np.ndarray:
 
     Reads ``capture.truth["lamp_position"]`` (the only place in the
     estimators that does): α of the true lamp is smallest at the mirror
-    point; the surface pixel of least α, refined over interpolated P, N
-    (:func:`~nearlight.estimator.observation.surface_at`) to 1e-4 px.
+    point; the located pixel (measured or filled) of least α, refined over
+    interpolated P, N (:func:`~nearlight.estimator.observation.surface_at`)
+    to 1e-4 px.
 
     Raises
     ------
@@ -248,7 +257,7 @@ def mirror_oracle_pixel(capture: Capture, obs: Observation) -> np.ndarray:
         raise UserError(f"{capture.name}: option origin=mirror-oracle: the capture has no truth.lamp_position "
                         "(the oracle needs the true lamp; use origin=peak, subpixel or model)")
     lamp = np.asarray(truth["lamp_position"], dtype=float)
-    s = obs.surface
+    s = obs.located
     alpha = shading_geometry(obs.P[s], obs.N[s], obs.camera_position, lamp).alpha
     start = np.argwhere(s)[int(np.argmin(alpha))].astype(float)
     res = minimize(lambda rc: _alpha2_at(obs, rc, lamp), start, method="Nelder-Mead",
@@ -259,12 +268,13 @@ def mirror_oracle_pixel(capture: Capture, obs: Observation) -> np.ndarray:
 def model_peak_pixel(obs: Observation, lamp: np.ndarray, sigma: float) -> np.ndarray:
     """Sub-pixel peak ``(row, column)`` the Torrance–Sparrow model predicts for a lamp and σ.
 
-    The model image ``exp(−α²/2σ²) / (cos θr r²)`` on the surface pixels (Ks
-    only scales it), its brightest pixel off the border, and the same
+    The model image ``exp(−α²/2σ²) / (cos θr r²)`` on the located pixels
+    (measured or filled: the data's peak may sit in a range hole; Ks only
+    scales it), its brightest pixel off the border, and the same
     log-Gaussian refinement as the data's (:func:`subpixel_peak`), so that
     the estimator's own bias cancels between the two.
     """
-    s = obs.surface
+    s = obs.located
     g = shading_geometry(obs.P[s], obs.N[s], obs.camera_position, lamp)
     img = np.zeros(s.shape)
     img[s] = np.exp(-0.5 * (g.alpha / sigma) ** 2) / (obs.cos_r[s] * g.r**2)
@@ -288,7 +298,7 @@ def origin_pixel(capture: Capture, obs: Observation, origin: str, origin_shift: 
     if origin == "mirror-oracle":
         m = mirror_oracle_pixel(capture, obs)
         return m + origin_shift * (np.asarray(obs.peak, dtype=float) - m)
-    return subpixel_peak(_brightness(obs), obs.surface, obs.peak)
+    return subpixel_peak(_brightness(obs), obs.located, obs.peak)
 
 
 def model_origin(obs: Observation, search: Callable[[RaySearch], dict], start: np.ndarray,

@@ -49,7 +49,7 @@ def render_specular(capture: Capture, estimate: Estimate) -> np.ndarray:
     kind = estimate.light_model.get("type", "point")
     if kind not in RENDERERS:
         raise UserError(f"estimate light_model.type: expected one of {', '.join(RENDERERS)}, got {kind!r}")
-    P, N, _, _, surface = surface_geometry(capture)
+    P, N, _, _, surface, _ = surface_geometry(capture)
     out = np.zeros((capture.height, capture.width, 3))
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         img = RENDERERS[kind](P[surface], N[surface], np.asarray(capture.camera.position, dtype=float), estimate)

@@ -5,6 +5,10 @@ Through an ideal analyzer at angle θ a pixel sees
 ``a = (Id + Is)/2`` and ``sqrt(b² + c²) = Is/2``. So ``Imax = a + Is/2`` and
 ``Imin = Id/2``: specular = Imax − Imin, diffuse = 2·Imin (``docs/physics.md``; the
 formulas are :mod:`nearlight.physics.polarization`'s).
+
+A calibrated rig's extinction ratios (``capture.rig``) undo what a real
+analyzer and a leaky lamp polarizer do to this model, exactly
+(:func:`rig_correction`).
 """
 
 from __future__ import annotations
@@ -75,7 +79,67 @@ SEPARATION_METHODS: dict[str, Callable[[np.ndarray, np.ndarray], tuple[np.ndarra
 }
 
 
-def separate(stack: np.ndarray, angles_deg: np.ndarray, *, method: str = "fit") -> tuple[np.ndarray, np.ndarray]:
+def rig_correction(specular: np.ndarray, diffuse: np.ndarray, *, analyzer_extinction_ratio: float | None = None,
+                   lamp_extinction_ratio: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Specular and diffuse radiance of an ideal analyzer's separation, corrected for a real rig.
+
+    Analyzer (extinction ratio ε_a, ``k_a = 1/ε_a``): the recorded images are
+    ``½ [(1 + k_a) S0 + (1 − k_a)(S1 cos 2θ + S2 sin 2θ)]``
+    (:func:`nearlight.physics.polarization.analyzer_stack`), i.e. the ideal
+    analyzer's images of ``S' = ((1 + k_a) S0, (1 − k_a) S1, (1 − k_a) S2)``.
+    Every separation method reads them as the ideal model of S', so it returns
+    ``specular' = (1 − k_a) √(S1² + S2²)`` and ``specular' + diffuse' = S0'
+    = (1 + k_a) S0``; dividing undoes it exactly (noise-free), from any
+    set of angles.
+
+    Lamp polarizer (ε_l, ``k_l = 1/ε_l``): unpolarized light leaves it with
+    ``I/2 · (1 + k_l)`` and DoLP ``(1 − k_l)/(1 + k_l)`` (``docs/physics.md``).
+    The specular lobe in the paper's ``ideal`` mode (a non-depolarizing
+    mirror) keeps that DoLP, and the diffuse lobe depolarizes fully, so the
+    polarized amplitude the separation measures is ``(1 − k_l)/(1 + k_l)``
+    of the specular radiance, the rest of which lands in ``diffuse``. The
+    correction scales the amplitude by ``(1 + k_l)/(1 − k_l)`` and moves the
+    same amount out of the diffuse: both are then exact, and the specular is
+    the radiance of the intensity that really reaches the surface,
+    ``I/2 · (1 + k_l)``, which Ks absorbs (``docs/physics.md``). A closed-form
+    scale only in ``ideal`` mode: a Fresnel reflection polarizes the leaked
+    light by an amount that depends on the geometry, which no scale undoes.
+
+    Parameters
+    ----------
+    specular, diffuse : ndarray, shape (H, W, 3)
+        What :func:`separate`'s method returned for the ideal model.
+    analyzer_extinction_ratio, lamp_extinction_ratio : float or None
+        ε ≥ 1 (``capture.rig``); None: ideal, no correction (the input is
+        returned as it is).
+
+    Returns
+    -------
+    specular, diffuse : ndarray, shape (H, W, 3)
+
+    Raises
+    ------
+    UserError
+        An extinction ratio of 1 (or below): that filter does not polarize,
+        so the stack holds no specular signal to separate.
+    """
+    ratios = {"analyzer_extinction_ratio": analyzer_extinction_ratio,
+              "lamp_polarizer_extinction_ratio": lamp_extinction_ratio}
+    for name, e in ratios.items():
+        if e is not None and not float(e) > 1.0:
+            raise UserError(f"rig.{name} = {e}: that polarizer does not polarize (ε must exceed 1), "
+                            "so there is no specular to separate")
+    ka, kl = (0.0 if e is None else 1.0 / float(e) for e in ratios.values())
+    if ka == 0.0 and kl == 0.0:
+        return specular, diffuse
+    S0 = (specular + diffuse) / (1.0 + ka)
+    specular = specular / (1.0 - ka) * ((1.0 + kl) / (1.0 - kl))
+    return specular, S0 - specular
+
+
+def separate(stack: np.ndarray, angles_deg: np.ndarray, *, method: str = "fit",
+             analyzer_extinction_ratio: float | None = None,
+             lamp_extinction_ratio: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Specular and diffuse images from an analyzer stack.
 
     Parameters
@@ -92,11 +156,15 @@ def separate(stack: np.ndarray, angles_deg: np.ndarray, *, method: str = "fit") 
         taken along the neighbourhood's phase, unbiased under noise (see
         :func:`_projected`). ``"maxmin"``: the paper's max − min over the
         samples, exact only when the samples hit the extrema (dense stacks).
+    analyzer_extinction_ratio, lamp_extinction_ratio : float or None, optional
+        The rig's extinction ratios (``capture.rig``; None: ideal, the
+        default): the result is corrected for them (:func:`rig_correction`).
 
     Returns
     -------
     specular, diffuse : ndarray, shape (H, W, 3)
-        ``Imax − Imin`` and ``2·Imin``, float64.
+        ``Imax − Imin`` and ``2·Imin`` of the ideal rig (the specular and
+        diffuse radiance), float64.
     """
     try:
         fn = SEPARATION_METHODS[method]
@@ -109,4 +177,6 @@ def separate(stack: np.ndarray, angles_deg: np.ndarray, *, method: str = "fit") 
             f"analyzer stack: shape {stack.shape} does not match {angles_deg.shape[0]} analyzer angles "
             "(expected K x H x W x 3)"
         )
-    return fn(stack, angles_deg)
+    specular, diffuse = fn(stack, angles_deg)
+    return rig_correction(specular, diffuse, analyzer_extinction_ratio=analyzer_extinction_ratio,
+                          lamp_extinction_ratio=lamp_extinction_ratio)
