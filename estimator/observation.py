@@ -18,7 +18,7 @@ import numpy as np
 from ..capture import Capture
 from ..errors import UserError
 from .normals import normals_from_positions
-from .separation import separate
+from .separation import separate_capture
 from ..physics.camera import camera_rays, project
 from ..physics.reflectance import normalize
 
@@ -424,11 +424,7 @@ def specular_image(capture: Capture, *, separation: str = "fit") -> np.ndarray:
         if stack.size:
             k = int(np.argmin(stack[:, surface].min(axis=(1, 2)))) if surface.any() else 0
             _check_signal(capture.name, f"pol{k}", stack.transpose(1, 2, 0, 3), surface)
-        rig = capture.rig
-        spec = separate(capture.stack, capture.analyzer_angles_deg, method=separation,
-                        analyzer_extinction_ratio=rig.analyzer_extinction_ratio,
-                        lamp_extinction_ratio=rig.lamp_polarizer_extinction_ratio)
-        spec, channel = spec[0], "pol<k>"
+        spec, channel = separate_capture(capture, method=separation)[0], "pol<k>"
         if surface.any() and np.all(np.isfinite(spec[surface])):
             top = float(np.abs(stack[:, surface]).max())
             if float(np.abs(spec[surface]).max()) <= 1e-6 * top:

@@ -14,6 +14,7 @@ analyzer and a leaky lamp polarizer do to this model, exactly
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -180,3 +181,22 @@ def separate(stack: np.ndarray, angles_deg: np.ndarray, *, method: str = "fit",
     specular, diffuse = fn(stack, angles_deg)
     return rig_correction(specular, diffuse, analyzer_extinction_ratio=analyzer_extinction_ratio,
                           lamp_extinction_ratio=lamp_extinction_ratio)
+
+
+def separate_capture(capture: Any, *, method: str = "fit") -> tuple[np.ndarray, np.ndarray]:
+    """:func:`separate` of a capture's analyzer stack with the extinction ratios its ``rig`` states.
+
+    Parameters
+    ----------
+    capture : Capture
+        With ``stack``, ``analyzer_angles_deg`` and ``rig``.
+    method : {"fit", "projected", "maxmin"}, optional
+
+    Returns
+    -------
+    specular, diffuse : ndarray, shape (H, W, 3)
+    """
+    rig = capture.rig
+    return separate(capture.stack, capture.analyzer_angles_deg, method=method,
+                    analyzer_extinction_ratio=rig.analyzer_extinction_ratio,
+                    lamp_extinction_ratio=rig.lamp_polarizer_extinction_ratio)  # fmt: skip

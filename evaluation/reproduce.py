@@ -195,10 +195,11 @@ def _method_row(row: Any, truth: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _specular_views(capture: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Original (no analyzer), separated diffuse and specular images, ``[H, W, 3]`` each."""
-    from ..estimator import separate
+    """Original (no analyzer), separated diffuse and specular images, ``[H, W, 3]`` each (corrected for the
+    extinction ratios the capture's ``rig`` states, as the estimators' separation is)."""
+    from ..estimator import separate_capture
 
-    spec, diff = separate(capture.stack, capture.analyzer_angles_deg, method="fit")
+    spec, diff = separate_capture(capture)
     return spec + diff, diff, spec
 
 
