@@ -465,7 +465,8 @@ def _expand(path: str, base: dict, spec: _GSAFile, inputs: list[Input], design: 
         try:
             one = load_sweep(_sample_doc(base, spec, inputs, x, base_scene), check_methods=False)
         except UserError as exc:
-            raise UserError(f"{path}: designs.{design.name}: sample {i} ({_describe(inputs, x)}): {exc}") from None
+            raise UserError(f"{path}: designs.{design.name}: sample {i} ({_describe(inputs, x)}): "
+                            f"{str(exc).removeprefix('<sweep>: ')}") from None
         first = first or one
         ids: dict[str, list[str]] = {}
         for t in one.tasks:

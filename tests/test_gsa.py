@@ -10,11 +10,16 @@ Morris elementary effect on the unit hypercube is exactly c_i (μ* = |c_i|, σ =
 
 from __future__ import annotations
 
+import json
 import math
+import re
 
 import numpy as np
+import pandas as pd
 import pytest
+import yaml
 
+from nearlight.cli import main
 from nearlight.evaluation.gsa import Design, Input, analyse, sample
 
 PI = math.pi
@@ -91,3 +96,110 @@ def test_a_categorical_input_picks_each_label_with_equal_probability():
     picked = [inp.value(x) for x in X[:, 0]]
     assert 0.45 < picked.count("ward") / len(picked) < 0.55  # a scrambled Sobol' sequence: ~half exactly
     assert inp.value(2.0) == "ward"  # the closed upper end maps to the last label
+
+
+# --------------------------------------------------------------------------- through the sweep engine and the CLI
+
+#: A plug-in "estimator" whose lamp-position error is a known linear model of the scene it is shown:
+#: 1 + 4 u_d + 2 u_r + 1 [Ward], u_d and u_r the lamp distance and the roughness scaled to [0, 1]
+#: (read from the capture's truth), so the study's indices are closed-form (module docstring).
+PLUGIN = '''
+import numpy as np
+from nearlight.estimator import Estimate
+
+
+def fit(capture):
+    truth = capture.truth
+    lamp = np.asarray(truth["lamp_position"])
+    bsdf = truth["bsdf"]
+    ward = bsdf["model"] == "ward"
+    sigma = bsdf["alpha"] / np.sqrt(2.0) if ward else bsdf["sigma"]
+    u_d = (np.linalg.norm(lamp) - 0.2) / 0.4
+    u_r = (sigma - 0.05) / 0.2
+    error = 1.0 + 4.0 * u_d + 2.0 * u_r + 1.0 * ward
+    return Estimate(method="gsa_plugin:fit", lamp_position=lamp + [error, 0.0, 0.0], ks=np.ones(3), sigma=0.1)
+'''
+
+
+def _study(tmp_path, monkeypatch, design):
+    (tmp_path / "gsa_plugin.py").write_text(PLUGIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    doc = {
+        "name": "linear", "renderer": "analytic",
+        "scene": {"width": 16, "height": 12},  # the board at the origin: lamp distance = |lamp position|
+        "methods": [{"name": "model", "method": "gsa_plugin:fit"}], "crlb": False,
+        "metrics": ["lamp_position_error_m"],
+        "inputs": {"lamp_distance": {"low": 0.2, "high": 0.6}, "roughness": {"low": 0.05, "high": 0.25},
+                   "bsdf": {"values": ["torrance_sparrow", "ward"]}},
+        "designs": {"main": design},
+    }  # fmt: skip
+    path = tmp_path / "linear.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def test_a_study_through_the_engine_and_the_cli_recovers_the_sobol_indices_of_a_linear_model(tmp_path, monkeypatch, capsys):
+    path = _study(tmp_path, monkeypatch, {"method": "sobol", "n": 64, "seed": 2})
+    assert main(["gsa", str(path), "--out", str(tmp_path / "res"), "--quiet"]) == 0
+    out, err = capsys.readouterr()
+    report = tmp_path / "res" / "main" / "gsa"
+    assert out == f"{report}\n"
+    # 64 blocks of (A, AB_1, AB_2, AB_3, B): AB_3 takes only bsdf from B, so it is A again when the coin
+    # fell the same way (32 of 64 blocks here): identical configurations run once
+    assert "sobol design, n = 64: 320 samples, 288 tasks" in err and "0 failed" in err
+    got = pd.read_csv(report / "indices.csv").set_index("input")
+    # variances of the three terms: 4² / 12, 2² / 12 and 1² / 4 (a fair coin): shares 16/23, 4/23, 3/23
+    want = pd.Series({"lamp_distance": 16 / 23, "roughness": 4 / 23, "bsdf": 3 / 23})
+    for name, w in want.items():
+        r = got.loc[name]
+        assert abs(r.S1 - w) <= r.S1_conf and abs(r.ST - w) <= r.ST_conf, (name, r.to_dict(), w)
+    assert (got["blocks"] == 64).all()
+    md = (report / "gsa.md").read_text()
+    assert re.search(r"\| model \| lamp_position_error_m \| lamp_distance 0\.\d+, roughness 0\.\d+, bsdf 0\.\d+ \|", md)
+    for png in ("indices_lamp_position_error_m.png", "scatter_model.png"):
+        assert (report / png).read_bytes()[:4] == b"\x89PNG"
+    prov = json.loads((tmp_path / "res" / "main" / "provenance.json").read_text())
+    assert set(prov["parts"]) == {"results", "gsa"}
+    assert prov["parts"]["results"]["command"].startswith(f"nearlight gsa {path} --out")
+    assert "evaluation/gsa.py" in prov["parts"]["gsa"]["code"]
+
+    # run again: nothing runs, the same report
+    assert main(["gsa", str(path), "--out", str(tmp_path / "res"), "--quiet"]) == 0
+    assert "ran 0 task(s), skipped 288 already done" in capsys.readouterr().err
+
+
+def test_a_morris_study_through_the_engine_gets_the_exact_elementary_effects(tmp_path, monkeypatch, capsys):
+    path = _study(tmp_path, monkeypatch, {"method": "morris", "n": 6, "seed": 4, "levels": 4})
+    assert main(["gsa", str(path), "--out", str(tmp_path / "res"), "--quiet"]) == 0
+    got = pd.read_csv(tmp_path / "res" / "main" / "gsa" / "indices.csv").set_index("input")
+    # a step of 2/3 of the range (4 levels) always flips the coin between its halves: effect 1 / (2/3) = 1.5
+    np.testing.assert_allclose(got.loc[["lamp_distance", "roughness", "bsdf"], "mu_star"], [4.0, 2.0, 1.5], rtol=1e-6)
+    np.testing.assert_allclose(got["sigma"], 0.0, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "change, needle",
+    [
+        ({"inputs": {"lamp_distance": {"low": 0.5, "high": 0.2}, "roughness": {"low": 0.1, "high": 0.2}}},
+         "inputs.lamp_distance: a uniform input needs low < high"),
+        ({"inputs": {"lamp_distanse": {"low": 0.2, "high": 0.5}, "roughness": {"low": 0.1, "high": 0.2}}},
+         "inputs.lamp_distanse: unknown input"),
+        ({"inputs": {"bsdf": {"low": 0, "high": 1}, "roughness": {"low": 0.1, "high": 0.2}}},
+         "inputs.bsdf: the bsdf axis takes labels"),
+        ({"inputs": {"noise.read_noise": {"low": 1, "high": 5}, "roughness": {"low": 0.1, "high": 0.2}}},
+         "inputs.noise.read_noise: needs the file's noise"),
+        ({"designs": {"main": {"method": "fast", "n": 4}}}, "designs.main.method:"),
+        ({"metrics": ["lamp_error"]}, "metrics: unknown metric 'lamp_error'"),
+        ({"inputs": {"roughness": {"low": -0.1, "high": 0.2}, "lamp_distance": {"low": 0.2, "high": 0.5}}},
+         "designs.main: sample 10 (lamp_distance=0.2023, roughness=-0.03323): axes.roughness: "),
+    ],
+)
+def test_a_bad_gsa_file_is_one_line_naming_file_and_key(tmp_path, monkeypatch, capsys, change, needle):
+    path = _study(tmp_path, monkeypatch, {"method": "sobol", "n": 4})
+    doc = yaml.safe_load(path.read_text())
+    doc.update(change)
+    path.write_text(yaml.safe_dump(doc))
+    assert main(["gsa", str(path), "--out", str(tmp_path / "res")]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and err.startswith(f"nearlight: error: {path}: ") and needle in err, err
+    assert not (tmp_path / "res").exists()
