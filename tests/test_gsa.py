@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -20,7 +21,7 @@ import pytest
 import yaml
 
 from nearlight.cli import main
-from nearlight.evaluation.gsa import Design, Input, analyse, sample
+from nearlight.evaluation.gsa import Design, Input, analyse, camera_position, load_study, sample
 
 PI = math.pi
 ISHIGAMI_S1 = np.array([0.3139, 0.4424, 0.0])
@@ -203,3 +204,34 @@ def test_a_bad_gsa_file_is_one_line_naming_file_and_key(tmp_path, monkeypatch, c
     out, err = capsys.readouterr()
     assert out == "" and err.count("\n") == 1 and err.startswith(f"nearlight: error: {path}: ") and needle in err, err
     assert not (tmp_path / "res").exists()
+
+
+# --------------------------------------------------------------------------- the shipped study: inputs to scene keys
+
+GLOBAL = Path(__file__).resolve().parents[1] / "sweeps" / "global.yaml"
+
+
+def test_each_sample_of_the_shipped_study_sets_the_scene_keys_its_inputs_drive():
+    study = load_study(GLOBAL, settings={"designs.screening.n": 2}, design="screening")
+    run = study.runs["screening"]
+    assert run.samples.shape == (14, 6) and [m.label for m in run.sweep.methods] == ["paper-init", "paper", "full", "distant"]
+    names = [i.name for i in study.inputs]
+    for x, ids in zip(run.samples, run.sample_tasks):
+        v = dict(zip(names, x))
+        task = next(t for t in run.sweep.tasks if t.task_id == ids["full"][0])
+        cam = np.asarray(task.scene["camera"]["position"])  # look_at is the origin, the board's normal +z
+        assert np.linalg.norm(cam) == pytest.approx(v["camera_distance"], rel=1e-9)
+        assert math.degrees(math.acos(cam[2] / np.linalg.norm(cam))) == pytest.approx(v["viewing_angle"], abs=1e-9)
+        assert cam[0] == pytest.approx(0.0, abs=1e-12) and cam[1] < 0  # in the base camera's plane, on its side
+        assert np.linalg.norm(task.scene["lamp"]["position"]) == pytest.approx(v["lamp_distance"], rel=1e-9)
+        assert task.scene["material"]["sigma"] == pytest.approx(v["roughness"], rel=1e-12)
+        assert task.noise == {"full_well": pytest.approx(v["noise.full_well"]), "read_noise": 5.0, "bits": 12}
+        assert task.range_noise == pytest.approx(v["range_noise"]) and task.seed == 0
+
+
+def test_camera_position_keeps_the_base_camera_without_inputs_and_follows_a_tilted_board():
+    scene = yaml.safe_load(GLOBAL.read_text())["scene"]
+    assert camera_position(scene, viewing_angle=None, camera_distance=None) == pytest.approx([0.0, -0.35, 0.5])
+    tilted = {**scene, "object": {**scene["object"], "normal": [0.0, 1.0, 1.0]}}  # the board's normal at 45 deg
+    cam = np.asarray(camera_position(tilted, viewing_angle=0.0, camera_distance=0.5))
+    np.testing.assert_allclose(cam, 0.5 * np.array([0.0, 1.0, 1.0]) / math.sqrt(2.0), atol=1e-12)
