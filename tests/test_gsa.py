@@ -235,3 +235,19 @@ def test_camera_position_keeps_the_base_camera_without_inputs_and_follows_a_tilt
     tilted = {**scene, "object": {**scene["object"], "normal": [0.0, 1.0, 1.0]}}  # the board's normal at 45 deg
     cam = np.asarray(camera_position(tilted, viewing_angle=0.0, camera_distance=0.5))
     np.testing.assert_allclose(cam, 0.5 * np.array([0.0, 1.0, 1.0]) / math.sqrt(2.0), atol=1e-12)
+
+
+def test_gsa_spells_quiet_cache_and_set_as_every_verb_does(tmp_path, monkeypatch, capsys):
+    from nearlight.cli import build_parser
+
+    verbs = build_parser()._subparsers._group_actions[0].choices  # noqa: SLF001 - argparse keeps its verbs here
+    assert {"--quiet", "--cache", "--no-cache", "--set", "--workers", "--scheduler", "--design"} <= {
+        s for a in verbs["gsa"]._actions for s in a.option_strings
+    }
+    path = _study(tmp_path, monkeypatch, {"method": "morris", "n": 2})
+    for argv, needle in [(["--set", "designs.main.n"], "--set 'designs.main.n': expected KEY=VALUE"),
+                         (["--design", "other"], "--design other: not a design of"),
+                         (["--workers", "0"], "--workers: expected a positive integer, got 0")]:  # fmt: skip
+        assert main(["gsa", str(path), "--out", str(tmp_path / "res"), *argv]) == 2
+        out, err = capsys.readouterr()
+        assert out == "" and err.count("\n") == 1 and needle in err, err
