@@ -116,15 +116,15 @@ def plot_indices(indices: pd.DataFrame, metric: str, design: str, path: Path) ->
         else:
             ax.bar(pos, m["mu_star"], width, yerr=m["mu_star_conf"], capsize=2, label=method)
     ax.set_xticks(x, inputs, rotation=20, ha="right")
-    ax.set_ylabel("Sobol' index (wide: total ST, narrow: first-order S1)" if design == "sobol"
-                  else f"Morris mu* ({metric} per input range)")  # fmt: skip
+    ax.set_ylabel("Sobol' index (wide ST, narrow S1)" if design == "sobol" else "Morris mu* (per input range)")
     ax.set_title(f"{metric}: what the error depends on")
     ax.legend(fontsize=7, ncol=2)
     return save_png(fig, path, dpi=110)
 
 
-def plot_scatter(table: pd.DataFrame, inputs: list[str], metric: str, method: str, path: Path) -> Path:
-    """``metric`` against each input for one method (one panel per input; categorical inputs by label)."""
+def plot_scatter(table: pd.DataFrame, inputs: list[Input], metric: str, method: str, path: Path) -> Path:
+    """``metric`` against each input for one method (one panel per input; categorical inputs by label,
+    log-uniform ones on a log axis)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -132,13 +132,17 @@ def plot_scatter(table: pd.DataFrame, inputs: list[str], metric: str, method: st
 
     t = table[table["method"] == method]
     fig, axs = plt.subplots(1, len(inputs), figsize=(2.8 * len(inputs), 2.8), constrained_layout=True, sharey=True)
-    for ax, name in zip(np.atleast_1d(axs), inputs):
+    for ax, inp in zip(np.atleast_1d(axs), inputs):
+        name = inp.name
         xs = t[name]
         if not pd.api.types.is_numeric_dtype(xs):
             codes = {v: k for k, v in enumerate(dict.fromkeys(xs))}
             ax.set_xticks(list(codes.values()), list(codes), rotation=20)
             xs = xs.map(codes)
         ax.scatter(xs, t[metric], s=6, alpha=0.6)
+        if inp.dist == "loguniform":
+            ax.set_xscale("log")
+            ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_xlabel(name)
     np.atleast_1d(axs)[0].set_ylabel(metric)
     fig.suptitle(f"{method}: {metric} against each input")
@@ -176,7 +180,6 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
     table = output_table(study, run, results)
     _write(folder / "indices.csv", indices.to_csv(index=False))
     _write(folder / "outputs.csv", table.to_csv(index=False))
-    names = [i.name for i in study.inputs]
     what = ("Sobol' indices (Saltelli sample, SALib): total ST ± half-width of the bootstrap interval, first-order "
             "S1 ± its half-width in brackets" if design == "sobol" else
             "Morris screening (SALib): mu* (mean |elementary effect|, the metric's change over the whole range of "
@@ -196,7 +199,7 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
     md += ["## Scatter plots", "", f"{metrics[0]} against each input (one point per sample).", ""]
     for method in methods:
         png = f"scatter_{_safe(method)}.png"
-        plot_scatter(table, names, metrics[0], method, folder / png)
+        plot_scatter(table, study.inputs, metrics[0], method, folder / png)
         md += [f"![{method}]({png})", ""]
     _write(folder / "gsa.md", "\n".join(md))
     record(results_dir, command=command, entry_modules=[__name__], inputs=[study.source], part="gsa")
