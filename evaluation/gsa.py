@@ -99,6 +99,12 @@ class _Design(BaseModel):
     conf_level: float = Field(default=0.95, gt=0, lt=1)
     methods: list[str] | None = None
 
+    @model_validator(mode="after")
+    def _power_of_two(self) -> "_Design":
+        if self.method == "sobol" and self.n & (self.n - 1):
+            raise ValueError(f"a sobol design needs n a power of 2 (Sobol' points keep their balance only then), got {self.n}")
+        return self
+
 
 class _GSAFile(BaseModel):
     model_config = ConfigDict(extra="forbid")
@@ -409,9 +415,9 @@ def load_study(source: str | Path, *, settings: Mapping[str, Any] = (), design: 
         loc = ".".join(str(x) for x in err["loc"]) or "<top>"
         raise UserError(f"{path}: {loc}: {err['msg'].removeprefix('Value error, ')}") from None
     inputs = _inputs(path, spec)
-    for name in spec.metrics:
-        from .metrics import METRICS, ESTIMATE_COLUMNS
+    from .metrics import ESTIMATE_COLUMNS, METRICS
 
+    for name in spec.metrics:
         if name not in (*METRICS, *ESTIMATE_COLUMNS):
             raise UserError(f"{path}: metrics: unknown metric {name!r} (expected one of {', '.join(METRICS)})")
     if design is not None and design not in spec.designs:
@@ -422,7 +428,7 @@ def load_study(source: str | Path, *, settings: Mapping[str, Any] = (), design: 
         scene = str(p.parent / scene)
     base = {"name": spec.name, "description": spec.description, "renderer": spec.renderer, "scene": scene,
             "set": spec.set, "seeds": spec.seeds, "crlb": spec.crlb}  # fmt: skip
-    base_scene = _first(load_sweep({**base, "methods": spec.methods}, check_methods=True), path).tasks[0].scene
+    base_scene = load_sweep({**base, "methods": spec.methods}, check_methods=True).tasks[0].scene  # no axes: one
     runs = {}
     for name, d in spec.designs.items():
         if design is not None and name != design:
@@ -433,12 +439,6 @@ def load_study(source: str | Path, *, settings: Mapping[str, Any] = (), design: 
         runs[name] = _expand(path, {**base, "name": f"{spec.name}-{name}", "methods": methods}, spec, inputs, dz, X,
                              base_scene)  # fmt: skip
     return Study(spec.name, path, inputs, list(spec.metrics), runs)
-
-
-def _first(sweep: Sweep, path: str) -> Sweep:
-    if not sweep.tasks:  # pragma: no cover - a sweep has at least one task
-        raise UserError(f"{path}: no configuration")
-    return sweep
 
 
 def _methods(path: str, design: str, methods: list[Any], chosen: tuple[str, ...] | None) -> list[Any]:
