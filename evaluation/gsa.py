@@ -1,9 +1,10 @@
 """Global sensitivity analysis: continuous inputs, a sampled design, the sweep engine, SALib's indices.
 
 A GSA file (``docs/global-sensitivity.md``) is a sweep file without ``axes``
-and ``profiles`` and with three more keys: ``inputs`` (name -> distribution),
-``designs`` (name -> ``{method: sobol | morris, n, seed, ...}``) and ``noise``
-(the camera noise that ``noise.FIELD`` inputs vary). Each design is sampled
+and ``profiles`` and with four more keys: ``inputs`` (name -> distribution),
+``designs`` (name -> ``{method: sobol | morris, n, seed, ...}``), ``noise``
+(the camera noise that ``noise.FIELD`` inputs vary) and ``metrics`` (the
+result columns analysed). Each design is sampled
 by SALib (:func:`sample`), each sample is turned into one configuration of an
 ordinary sweep (:func:`load_study`: one :func:`~nearlight.evaluation.sweep.load_sweep`
 per sample, so every scene key is applied and checked exactly as in a sweep),
@@ -94,7 +95,6 @@ class _Design(BaseModel):
     n: int = Field(ge=1)
     seed: int = Field(default=0, ge=0)
     levels: int = Field(default=4, ge=2)
-    second_order: bool = False
     resamples: int = Field(default=1000, ge=10)
     conf_level: float = Field(default=0.95, gt=0, lt=1)
     methods: list[str] | None = None
@@ -159,15 +159,16 @@ class Input:
 @dataclasses.dataclass(frozen=True)
 class Design:
     """A sampling design: SALib's ``method`` with base sample count ``n`` (Saltelli's N, or the number
-    of Morris trajectories), its seed, Morris's grid ``levels``, whether Sobol' second-order indices are
-    sampled, the bootstrap ``resamples`` and confidence level, and the methods it runs (None: all)."""
+    of Morris trajectories), its seed, Morris's grid ``levels``, the bootstrap ``resamples`` and
+    confidence level, and the methods it runs (None: all). Sobol' designs are first-order and total
+    indices only: second order would cost ``n·(2k + 2)`` runs instead of ``n·(k + 2)``, and ``ST − S1``
+    already shows how much of an input's share is interaction."""
 
     name: str
     method: str
     n: int
     seed: int = 0
     levels: int = 4
-    second_order: bool = False
     resamples: int = 1000
     conf_level: float = 0.95
     methods: tuple[str, ...] | None = None
@@ -176,7 +177,7 @@ class Design:
         """Rows of one independent block of the sample (a Morris trajectory, a Saltelli base sample)."""
         if self.method == "morris":
             return k + 1
-        return 2 * k + 2 if self.second_order else k + 2
+        return k + 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -227,8 +228,8 @@ def sample(inputs: list[Input], design: Design) -> np.ndarray:
     Returns
     -------
     ndarray, shape (n_samples, k)
-        ``sobol``: Saltelli's scheme (:func:`SALib.sample.sobol.sample`), ``n·(k + 2)``
-        rows (``n·(2k + 2)`` with second order); ``n`` should be a power of 2.
+        ``sobol``: Saltelli's scheme (:func:`SALib.sample.sobol.sample`, scrambled),
+        ``n`` blocks of ``k + 2`` rows; ``n`` a power of 2.
         ``morris``: ``n`` trajectories of ``k + 1`` rows on a ``levels`` grid
         (:func:`SALib.sample.morris.sample`).
     """
@@ -236,7 +237,7 @@ def sample(inputs: list[Input], design: Design) -> np.ndarray:
 
     prob = problem(inputs)
     if design.method == "sobol":
-        return sobol.sample(prob, design.n, calc_second_order=design.second_order, seed=design.seed)
+        return sobol.sample(prob, design.n, calc_second_order=False, seed=design.seed)
     return morris.sample(prob, design.n, num_levels=design.levels, seed=design.seed)
 
 
@@ -275,7 +276,7 @@ def analyse(inputs: list[Input], design: Design, X: np.ndarray, Y: np.ndarray) -
         keys = ("S1", "S1_conf", "ST", "ST_conf")
         if keep.sum() < 2 or np.var(Y[np.repeat(keep, size)]) == 0:
             return [{"input": n, **dict.fromkeys(keys, math.nan)} for n in names], int(keep.sum())
-        res = sobol.analyze(problem(inputs), Y[np.repeat(keep, size)], calc_second_order=design.second_order,
+        res = sobol.analyze(problem(inputs), Y[np.repeat(keep, size)], calc_second_order=False,
                             num_resamples=design.resamples, conf_level=design.conf_level, seed=design.seed)  # fmt: skip
     else:
         keys = ("mu", "mu_star", "mu_star_conf", "sigma")
