@@ -435,6 +435,10 @@ def load_study(source: str | Path, *, settings: Mapping[str, Any] = (), design: 
         if design is not None and name != design:
             continue
         dz = Design(name=name, **{**d.model_dump(), "methods": tuple(d.methods) if d.methods else None})
+        for inp in inputs:  # Morris's grid of `levels` points meets n labels equally often iff n divides it
+            if dz.method == "morris" and inp.labels is not None and dz.levels % len(inp.labels):
+                raise UserError(f"{path}: designs.{name}.levels: {dz.levels} is not a multiple of the "
+                                f"{len(inp.labels)} labels of input {inp.name} (its labels would not be equally likely)")  # fmt: skip
         methods = _methods(path, name, spec.methods, dz.methods)
         X = sample(inputs, dz)
         runs[name] = _expand(path, {**base, "name": f"{spec.name}-{name}", "methods": methods}, spec, inputs, dz, X,

@@ -192,6 +192,8 @@ def test_a_morris_study_through_the_engine_gets_the_exact_elementary_effects(tmp
         ({"designs": {"main": {"method": "fast", "n": 4}}}, "designs.main.method:"),
         ({"designs": {"main": {"method": "sobol", "n": 100}}}, "designs.main: a sobol design needs n a power of 2"),
         ({"metrics": ["lamp_error"]}, "metrics: unknown metric 'lamp_error'"),
+        ({"designs": {"main": {"method": "morris", "n": 4, "levels": 5}}},
+         "designs.main.levels: 5 is not a multiple of the 2 labels of input bsdf"),
         ({"inputs": {"roughness": {"low": -0.1, "high": 0.2}, "lamp_distance": {"low": 0.2, "high": 0.5}}},
          "designs.main: sample 10 (lamp_distance=0.2023, roughness=-0.03323): axes.roughness: "),
     ],
