@@ -182,8 +182,9 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
     _write(folder / "outputs.csv", table.to_csv(index=False))
     what = ("Sobol' indices (Saltelli sample, SALib): total ST ± half-width of the bootstrap interval, first-order "
             "S1 ± its half-width in brackets" if design == "sobol" else
-            "Morris screening (SALib): mu* (mean |elementary effect|, the metric's change over the whole range of "
-            "the input) ± half-width of the bootstrap interval, sigma in brackets (interactions and curvature)")
+            "Morris screening (SALib): mu* (mean |elementary effect|: the metric's change over a step of the input "
+            "divided by the step, per input range) ± half-width of the bootstrap interval, sigma in brackets "
+            "(interactions and curvature)")
     md = [f"# Sweep report: global sensitivity of {study.name}, design {run.design.name}", "",
           f"{what}, at {int(100 * run.design.conf_level)} % confidence; `blocks`: "
           + ("Saltelli base samples" if design == "sobol" else "trajectories")
