@@ -163,7 +163,7 @@ def _gsa(args: argparse.Namespace) -> int:
     if args.scheduler is not None:
         check_scheduler(args.scheduler)
         require_extra("cluster")
-    settings = dict(parse_setting(s, example="designs.screening.n=2") for s in args.set)
+    settings = dict(parse_setting(item, example="designs.screening.n=2") for item in args.set)
     check_folder(args.out, what="results folder")
     study = load_study(args.gsa, settings=settings, design=args.design)
     for run in study.runs.values():
@@ -176,7 +176,7 @@ def _gsa(args: argparse.Namespace) -> int:
     for name, run in study.runs.items():
         out = Path(args.out) / name
         command = " ".join(["nearlight gsa", args.gsa, "--out", args.out, "--design", name,
-                            *(f"--set {s}" for s in args.set)])  # fmt: skip
+                            *(f"--set {item}" for item in args.set)])  # fmt: skip
         sweep = run.sweep
         print(
             f"gsa {study.name} {name}: {run.design.method} design, n = {run.design.n}: {len(run.samples)} samples, "
@@ -192,7 +192,8 @@ def _gsa(args: argparse.Namespace) -> int:
             raise UserError(f"--scheduler {args.scheduler}: cannot connect ({' '.join(str(exc).split())})") from None
         print(
             f"gsa {study.name} {name}: ran {s.ran} task(s), skipped {s.skipped} already done, {s.failed} failed; "
-            f"{s.seconds:.1f} s; " + ("complete" if s.complete else "INCOMPLETE"),
+            f"renders: {s.rendered} rendered, {s.reused} task(s) re-used a render; {s.seconds:.1f} s; "
+            + ("complete" if s.complete else "INCOMPLETE"),
             file=sys.stderr,
         )
         if s.complete:
