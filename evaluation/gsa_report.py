@@ -82,6 +82,8 @@ def _cells(indices: pd.DataFrame, metric: str, design: str) -> pd.DataFrame:
     g = indices[indices["metric"] == metric]
 
     def cell(r: pd.Series) -> str:
+        if pd.isna(r.ST if design == "sobol" else r.mu_star):
+            return "n/a"
         if design == "sobol":
             return f"{r.ST:.2f} ± {r.ST_conf:.2f} ({r.S1:.2f} ± {r.S1_conf:.2f})"
         return f"{r.mu_star:.3g} ± {r.mu_star_conf:.2g} ({r.sigma:.3g})"
