@@ -261,7 +261,7 @@ def analyse(inputs: list[Input], design: Design, X: np.ndarray, Y: np.ndarray) -
         ``design.conf_level``); for ``morris``, ``mu``, ``mu_star``,
         ``mu_star_conf``, ``sigma`` (in the output's units per unit of the
         input's range: SALib's elementary effects on the unit hypercube).
-        All NaN when no block is left.
+        All NaN when fewer than 2 blocks are left (or, Sobol', the outputs do not vary).
     blocks : int
         Blocks analysed (of ``design.n``).
     """

@@ -254,3 +254,13 @@ def test_gsa_spells_quiet_cache_and_set_as_every_verb_does(tmp_path, monkeypatch
         assert main(["gsa", str(path), "--out", str(tmp_path / "res"), *argv]) == 2
         out, err = capsys.readouterr()
         assert out == "" and err.count("\n") == 1 and needle in err, err
+
+
+def test_a_samples_output_is_the_mean_over_its_seeds_and_nan_when_any_failed():
+    from nearlight.evaluation.gsa import DesignRun, outputs
+
+    run = DesignRun(Design("d", "morris", n=1), np.zeros((3, 2)), None,
+                    [{"m": ["a", "b"]}, {"m": ["c"]}, {"m": ["d", "e"]}])  # fmt: skip
+    rows = pd.DataFrame({"task_id": list("abcde"), "status": ["ok", "ok", "ok", "ok", "error"],
+                         "lamp_position_error_m": [1.0, 3.0, 5.0, 7.0, math.nan]})  # fmt: skip
+    np.testing.assert_array_equal(outputs(run, rows, "lamp_position_error_m", "m"), [2.0, 5.0, np.nan])
