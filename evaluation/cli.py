@@ -1,4 +1,4 @@
-"""Verbs ``sweep``, ``report`` and ``compare`` of the ``nearlight`` command."""
+"""Verbs ``sweep``, ``report``, ``compare`` and ``gsa`` of the ``nearlight`` command."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from ..generator.cli import add_cache_options, add_quiet_option, results_cache
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``sweep``, ``report`` and ``compare`` to the ``nearlight`` command."""
+    """Add ``sweep``, ``report``, ``compare`` and ``gsa`` to the ``nearlight`` command."""
     p = subparsers.add_parser(
         "sweep",
         help="run (or resume) a sweep file into a results folder",
@@ -54,6 +54,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--json", metavar="OUT.json", help="also write every check and the verdict as JSON")
     p.add_argument("--include-runtime", action="store_true", help="also compare runtime_s")
     p.set_defaults(run=_compare)
+
+    p = subparsers.add_parser(
+        "gsa",
+        help="global sensitivity analysis: sample a GSA file's inputs, run them as a sweep, rank what matters",
+        description="Sample each design of a GSA file (Saltelli for Sobol' indices, or Morris screening; SALib), "
+        "run every sampled configuration on the sweep engine into DIR/<design>/ (resumed when it exists) and "
+        "write DIR/<design>/gsa/: the indices with bootstrap intervals per method and metric, bar charts and "
+        "scatter plots.",
+    )
+    p.add_argument("gsa", metavar="GSA.yaml")
+    p.add_argument("--out", required=True, metavar="DIR", help="results folder: one sub-folder per design")
+    p.add_argument("--design", metavar="NAME", help="run only this design (default: every design of the file)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="change a key of the GSA file, e.g. designs.screening.n=2 (repeatable)")
+    p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on this Dask distributed scheduler")
+    add_cache_options(p, default="DIR/<design>/renders")
+    add_quiet_option(p)
+    p.set_defaults(run=_gsa)
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -128,3 +147,58 @@ def _compare(args: argparse.Namespace) -> int:
     if args.json:
         print(args.json)
     return 1 if any(c.regression for c in checks) else 0
+
+
+def _gsa(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..files.outputs import check_folder
+    from ..files.yamlfile import parse_setting
+    from .engine import check_resumable, run_sweep
+    from .gsa import load_study
+    from .gsa_report import write_gsa_report
+
+    if args.workers < 1:
+        raise UserError(f"--workers: expected a positive integer, got {args.workers}")
+    if args.scheduler is not None:
+        check_scheduler(args.scheduler)
+        require_extra("cluster")
+    settings = dict(parse_setting(item, example="designs.screening.n=2") for item in args.set)
+    check_folder(args.out, what="results folder")
+    study = load_study(args.gsa, settings=settings, design=args.design)
+    for run in study.runs.values():
+        if run.sweep.renderer.extra is not None:
+            require_extra(run.sweep.renderer.extra)
+        check_resumable(Path(args.out) / run.design.name, run.sweep)  # every design before anything runs
+    cache = results_cache(args)
+    where = f"Dask scheduler {args.scheduler}" if args.scheduler else f"{args.workers} local worker(s)"
+    status = 0
+    for name, run in study.runs.items():
+        out = Path(args.out) / name
+        command = " ".join(["nearlight gsa", args.gsa, "--out", args.out, "--design", name,
+                            *(f"--set {item}" for item in args.set)])  # fmt: skip
+        sweep = run.sweep
+        print(
+            f"gsa {study.name} {name}: {run.design.method} design, n = {run.design.n}: {len(run.samples)} samples, "
+            f"{len(sweep.tasks)} tasks, {len(sweep.render_keys)} physical configurations, on {where} -> {out}",
+            file=sys.stderr,
+        )
+        kw = {"scheduler": args.scheduler} if args.scheduler else {"workers": args.workers}
+        try:
+            s = run_sweep(sweep, out, progress=not args.quiet, cache_dir=cache, command=command, **kw)
+        except (OSError, ValueError) as exc:
+            if not args.scheduler:
+                raise
+            raise UserError(f"--scheduler {args.scheduler}: cannot connect ({' '.join(str(exc).split())})") from None
+        print(
+            f"gsa {study.name} {name}: ran {s.ran} task(s), skipped {s.skipped} already done, {s.failed} failed; "
+            f"renders: {s.rendered} rendered, {s.reused} task(s) re-used a render; {s.seconds:.1f} s; "
+            + ("complete" if s.complete else "INCOMPLETE"),
+            file=sys.stderr,
+        )
+        if s.complete:
+            print(write_gsa_report(study, run, out, command=command))  # the result: each design's report folder
+        else:
+            print(out)
+            status = 1
+    return status
