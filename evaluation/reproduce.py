@@ -242,8 +242,14 @@ def board_view(ex: Experiment) -> dict[str, Any]:
 
 
 def object_view(ex: Experiment, title: str) -> dict[str, Any]:
-    """Separation, estimation, re-synthesis (``full``) and composite of one object (paper Figs. 5–7)."""
-    rows = [r for _, r in ex.rows.iterrows()]
+    """Separation, estimation, re-synthesis (``full``) and composite of one object (paper Figs. 5–7).
+
+    With a ``set`` axis, its first label is the experiment (figures, ``methods``) and each further label
+    a diagnostic variant of it (``variants``: label -> its overrides and rows per method).
+    """
+    every = [r for _, r in ex.rows.iterrows()]
+    labels = list(dict.fromkeys(str(r["set"]) for r in every)) if "set" in ex.rows else [None]
+    rows = [r for r in every if labels[0] is None or str(r["set"]) == labels[0]]
     task = ex.task(rows[0])
     _, seen = ex.captures(rows[0])
     original, diffuse, spec = _specular_views(seen)
@@ -271,6 +277,10 @@ def object_view(ex: Experiment, title: str) -> dict[str, Any]:
         "realism": str(task.scene.get("realism", "none")),
         "seed": task.seed,
         "methods": {r["method"]: _method_row(r, seen.truth) for r in rows},
+        "variants": {label: {"set": dict(ex.sweep.axes["set"])[label],
+                             "methods": {r["method"]: _method_row(r, ex.captures(r)[1].truth)
+                                         for r in every if str(r["set"]) == label}}
+                     for label in labels[1:]},  # fmt: skip
         "figures": figs,
     }
 

@@ -54,6 +54,10 @@ def rows(doc: dict[str, Any]) -> Iterator[tuple[str, str, str, float | None]]:
             for method, r in ex["methods"].items():
                 for metric in TOLERANCES:
                     yield name, method, metric, r.get(metric)
+        for label, variant in ex.get("variants", {}).items():
+            for method, r in variant["methods"].items():
+                for metric in TOLERANCES:
+                    yield name, f"{method} ({label})", metric, r.get(metric)
         for r in ex.get("rows", []):
             distance = r.get("lamp_distance_m", r.get("distance_m"))  # distance_m: runs made before the paper sweeps
             for metric in TOLERANCES:

@@ -56,7 +56,8 @@ def test_the_report_is_a_view_of_the_engines_rows(quick_report):
         assert complete and set(df["status"]) == {"ok"}, name
         assert (out / ex["results"] / "environment.json").is_file()
         assert ex["sweep"] == f"sweeps/paper/{EXPERIMENTS[name][0]}"
-        shown = ex["methods"].values() if "methods" in ex else ex.get("rows") or ex["samples"]
+        shown = ex.get("rows") or ex.get("samples") or [
+            *ex["methods"].values(), *(r for v in ex.get("variants", {}).values() for r in v["methods"].values())]
         by_id = df.set_index("task_id")
         assert sorted(r["task_id"] for r in shown) == sorted(df["task_id"])
         for r in shown:
