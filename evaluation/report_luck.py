@@ -103,7 +103,7 @@ def plot_luck(df: pd.DataFrame, axes: list[str], path: Path, *, x_axis: str | No
     nrow = -(-len(methods) // ncol)
     fig, axs = plt.subplots(nrow, ncol, figsize=(4.6 * ncol, 3.4 * nrow), squeeze=False, sharey=True,
                             constrained_layout=True)  # fmt: skip
-    cmap = plt.get_cmap("tab10")
+    cmap = plt.get_cmap("tab10" if len(groups) <= 10 else "tab20")
     width = 0.8 / max(len(groups), 1)
     for ax, method in zip(axs.flat, methods):
         g = rows[rows["method"] == method]
@@ -116,8 +116,8 @@ def plot_luck(df: pd.DataFrame, axes: list[str], path: Path, *, x_axis: str | No
                 if not len(y):
                     continue
                 x = i - 0.4 + width * (j + 0.5)
-                ax.plot([x, x], [y.min(), y.max()], color=cmap(j % 10), lw=1.2, alpha=0.7)
-                ax.plot(np.full(len(y), x), y, "o", ms=2.5, color=cmap(j % 10),
+                ax.plot([x, x], [y.min(), y.max()], color=cmap(j % cmap.N), lw=1.2, alpha=0.7)
+                ax.plot(np.full(len(y), x), y, "o", ms=2.5, color=cmap(j % cmap.N),
                         label=", ".join(map(str, key)) if i == 0 else None)
         ax.set_yscale("log")
         ax.set_xticks(range(len(xs)), [str(v) for v in xs])
