@@ -43,11 +43,11 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from ..errors import UserError
 from ..files.yamlfile import load_yaml_file
-from .sweep import Sweep, load_sweep
+from .sweep import Sweep, _SweepFile, load_sweep
 from .sweep import _label as axis_label  # one home for how an axis value labels itself
 
 #: Built-in axes an input may drive with a number (as the sweep axis of that name).
@@ -106,20 +106,22 @@ class _Design(BaseModel):
         return self
 
 
-class _GSAFile(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    name: str
-    description: str = ""
-    renderer: Literal["mitsuba", "analytic"] = "mitsuba"
-    scene: str | dict[str, Any]
-    set: dict[str, Any] = Field(default_factory=dict)
+class _GSAFile(_SweepFile):
+    """A sweep file's keys (one schema: :class:`~nearlight.evaluation.sweep._SweepFile`) without its grid,
+    ``axes`` and ``profiles``, plus the GSA's own."""
+
+    methods: list[Any] = Field(min_length=1)  # passed on to load_sweep as written, which checks them
     noise: dict[str, Any] | None = None
-    seeds: int | list[int] = 1
-    methods: list[Any] = Field(min_length=1)
-    crlb: bool = True
     metrics: list[str] = Field(default_factory=lambda: list(DEFAULT_METRICS), min_length=1)
     inputs: dict[str, _Input] = Field(min_length=2)
     designs: dict[str, _Design] = Field(min_length=1)
+
+    @field_validator("axes", "profiles")
+    @classmethod
+    def _no_grid(cls, v: dict, info: ValidationInfo) -> dict:
+        if v:
+            raise ValueError(f"a GSA file has `inputs` and `designs` instead of a sweep's {info.field_name}")
+        return v
 
 
 @dataclasses.dataclass(frozen=True)

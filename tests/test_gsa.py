@@ -196,6 +196,8 @@ def test_a_morris_study_through_the_engine_gets_the_exact_elementary_effects(tmp
          "designs.main.levels: 5 is not a multiple of the 2 labels of input bsdf"),
         ({"inputs": {"roughness": {"low": -0.1, "high": 0.2}, "lamp_distance": {"low": 0.2, "high": 0.5}}},
          "designs.main: sample 10 (lamp_distance=0.2023, roughness=-0.03323): axes.roughness: "),
+        ({"axes": {"roughness": [0.1, 0.2]}}, "axes: a GSA file has `inputs` and `designs` instead of a sweep's axes"),
+        ({"seeds": 0}, "seeds: expected a positive count"),  # the sweep file's own rule (one schema)
     ],
 )
 def test_a_bad_gsa_file_is_one_line_naming_file_and_key(tmp_path, monkeypatch, capsys, change, needle):
