@@ -39,6 +39,8 @@ from .result import Estimate
 from ..physics.reflectance import LOBES, roughness_for_ts_sigma, shading_geometry, ts_sigma
 
 LOSSES = ("huber", "soft_l1", "linear", "cauchy", "arctan")
+#: ``full``'s ``lobe`` option: a family, or ``auto``.
+LOBE_CHOICES = (*FAMILIES, "auto")
 #: Pixel-weight models of ``full``'s ``noise`` option.
 NOISE_MODELS = ("none", "auto")
 
@@ -160,7 +162,7 @@ def _chi2(model: PointLampModel, x: np.ndarray) -> float:
 def full_estimate(
     capture: Capture,
     *,
-    lobe: Choice((*FAMILIES, "auto")) = "auto",
+    lobe: Choice(LOBE_CHOICES) = "auto",
     noise: Choice(NOISE_MODELS) = "none",
     loss: Choice(LOSSES) = "huber",
     f_scale: Positive | None = None,
