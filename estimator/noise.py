@@ -40,7 +40,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..physics.polarization import analyzer_matrix
+from ..physics.polarization import analyzer_matrix, aolp, linear_stokes
+from .separation import specular_gain
 
 #: Relative floor of the specular's standard deviation, as a fraction of its peak.
 FLOOR = 1e-4
@@ -69,6 +70,53 @@ def _sensor_field(sensor: Any, key: str) -> float | None:
     return None if value is None else float(value)
 
 
+def sensor_noise(*, saturation: float, full_well: float, read_noise: float = 0.0, bits: float | None = None) -> CameraNoise:
+    """The Poisson–Gaussian model of a stated sensor.
+
+    ``gain = saturation / full_well`` (radiance per electron); ``read_var =
+    (read_noise · gain)² + q²/12``, the ADC step ``q = saturation / (2^bits − 1)``
+    taken as uniform rounding (none without ``bits``).
+
+    Parameters
+    ----------
+    saturation : float
+        Radiance that fills the full well.
+    full_well, read_noise : float
+        Electrons; electrons rms.
+    bits : int, optional
+        ADC resolution.
+    """
+    gain = saturation / full_well
+    step = saturation / (2.0**bits - 1.0) if bits else 0.0
+    return CameraNoise(gain, (read_noise * gain) ** 2 + step**2 / 12.0, "sensor")
+
+
+def variance(L: np.ndarray, noise: CameraNoise) -> np.ndarray:
+    """``gain · L + read_var`` of recorded radiance ``L`` (negative read as 0), radiance², shape of ``L``."""
+    return noise.gain * np.clip(L, 0.0, None) + noise.read_var
+
+
+def stokes_weights(angles_deg: Any, beta: np.ndarray) -> np.ndarray:
+    """Weights ``w_k`` of the specular ``Σ_k w_k I_k`` along phase β, shape ``(K, *beta.shape)``.
+
+    ``w_k = P_1k cos 2β + P_2k sin 2β`` with ``P`` the pseudo-inverse of the
+    analyzer matrix (rows S0, S1, S2): the specular ``S1 cos 2β + S2 sin 2β``
+    of the Stokes fit read along β. ``Σ_k w_k²`` is ``8 / K`` for ``K``
+    evenly spaced angles.
+
+    Parameters
+    ----------
+    angles_deg : array_like, shape (K,)
+    beta : ndarray, shape (...)
+        Phase (AoLP) of each pixel, radians.
+    """
+    P = np.linalg.pinv(analyzer_matrix(angles_deg))
+    beta = np.asarray(beta, dtype=float)
+    c, s = np.cos(2.0 * beta), np.sin(2.0 * beta)
+    shape = (-1,) + (1,) * beta.ndim
+    return P[1].reshape(shape) * c + P[2].reshape(shape) * s
+
+
 def camera_noise(capture: Any, *, surface: np.ndarray | None = None) -> CameraNoise | None:
     """The capture's Poisson–Gaussian camera model: stated, else measured from the stack, else None.
 
@@ -82,11 +130,8 @@ def camera_noise(capture: Any, *, surface: np.ndarray | None = None) -> CameraNo
     if sensor is not None:
         sat, well = _sensor_field(sensor, "saturation"), _sensor_field(sensor, "full_well")
         if sat and well:
-            gain = sat / well
-            read = _sensor_field(sensor, "read_noise") or 0.0
-            bits = _sensor_field(sensor, "bits")
-            step = sat / (2.0**bits - 1.0) if bits else 0.0
-            return CameraNoise(gain, (read * gain) ** 2 + step**2 / 12.0, "sensor")
+            return sensor_noise(saturation=sat, full_well=well, read_noise=_sensor_field(sensor, "read_noise") or 0.0,
+                                bits=_sensor_field(sensor, "bits"))
     if capture.stack is None or len(capture.analyzer_angles_deg) < 4:
         return None
     A = analyzer_matrix(capture.analyzer_angles_deg)
@@ -129,22 +174,13 @@ def specular_variance(capture: Any, specular: np.ndarray, noise: CameraNoise) ->
     peak = float(np.nanmax(np.abs(specular))) if np.isfinite(specular).any() else 1.0
     floor = (FLOOR * peak) ** 2
     if capture.specular is not None or capture.stack is None:
-        var = noise.gain * np.clip(specular, 0.0, None) + noise.read_var
-        return np.maximum(var, floor)
-    A = analyzer_matrix(capture.analyzer_angles_deg)
-    Pinv = np.linalg.pinv(A)  # (3, K): rows S0, S1, S2
+        return np.maximum(variance(specular, noise), floor)
     stack = np.asarray(capture.stack, dtype=float)
-    coef = np.tensordot(Pinv, stack, axes=1)  # (3, H, W, 3)
-    mu = np.tensordot(A, coef, axes=1)  # (K, H, W, 3)
-    b, c = coef[1].sum(axis=-1), coef[2].sum(axis=-1)
-    norm = np.hypot(b, c)
-    safe = norm > 0
-    ub = np.where(safe, b / np.where(safe, norm, 1.0), 1.0)
-    uc = np.where(safe, c / np.where(safe, norm, 1.0), 0.0)
-    w = Pinv[1][:, None, None] * ub + Pinv[2][:, None, None] * uc  # (K, H, W): specular = S1 cos 2β + S2 sin 2β
-    var = np.einsum("khw,khwc->hwc", w**2, noise.gain * np.clip(mu, 0.0, None) + noise.read_var)
+    coef = linear_stokes(stack, capture.analyzer_angles_deg)  # (3, H, W, 3)
+    mu = np.tensordot(analyzer_matrix(capture.analyzer_angles_deg), coef, axes=1)  # (K, H, W, 3)
+    beta = aolp(coef[1].sum(axis=-1), coef[2].sum(axis=-1))  # one phase per pixel, as the separation's
+    w = stokes_weights(capture.analyzer_angles_deg, beta)  # (K, H, W)
+    var = np.einsum("khw,khwc->hwc", w**2, variance(mu, noise))
     rig = capture.rig
-    ka = 0.0 if rig.analyzer_extinction_ratio is None else 1.0 / float(rig.analyzer_extinction_ratio)
-    kl = 0.0 if rig.lamp_polarizer_extinction_ratio is None else 1.0 / float(rig.lamp_polarizer_extinction_ratio)
-    scale = (1.0 + kl) / ((1.0 - ka) * (1.0 - kl))
-    return np.maximum(var * scale**2, floor)
+    gain = specular_gain(rig.analyzer_extinction_ratio, rig.lamp_polarizer_extinction_ratio)
+    return np.maximum(var * gain**2, floor)
