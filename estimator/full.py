@@ -28,7 +28,7 @@ import numpy as np
 from ..capture import Capture
 from ..errors import UserError
 from .fitting import log_regression, robust_fit
-from .lobes import FAMILIES, peak_shape, radiance_and_log_derivatives
+from .lobes import FAMILIES, radiance_and_log_derivatives
 from .noise import camera_noise, specular_variance
 from .observation import Observation
 from .options import Choice, Count, CountOrZero, Positive, forwards
@@ -36,7 +36,7 @@ from .paper import RaySearch, stage_one
 from .separation import SEPARATION_METHODS
 from .pixels import fit_pixels
 from .result import Estimate
-from ..physics.reflectance import LOBES, roughness_for_ts_sigma, shading_geometry, ts_sigma
+from ..physics.reflectance import LOBES, peak_shape, roughness_for_ts_sigma, shading_geometry, ts_sigma
 
 LOSSES = ("huber", "soft_l1", "linear", "cauchy", "arctan")
 #: ``full``'s ``lobe`` option: a family, or ``auto``.
@@ -242,7 +242,7 @@ def full_estimate(
     -------
     Estimate
         ``ks`` and ``sigma`` of the Torrance–Sparrow lobe with the fitted
-        lobe's peak and small-angle width (:func:`~nearlight.estimator.lobes.peak_shape`,
+        lobe's peak and small-angle width (:func:`~nearlight.physics.reflectance.peak_shape`,
         :func:`~nearlight.physics.reflectance.ts_sigma`); the fitted family's
         own BSDF dict in ``stages["full"]["bsdf"]``. ``covariance``: 1-σ
         covariance of ``(x, y, z, σ)``; ``stages["full"]`` holds the 7 × 7

@@ -37,16 +37,6 @@ from ..physics.reflectance import LOBES, brdf_shape
 FAMILIES = tuple(LOBES)
 
 
-def peak_shape(model: str, roughness: float) -> float:
-    """The shape at normal incidence and reflection (``cos θi = cos θr = 1``, α = 0), 1/sr.
-
-    Torrance–Sparrow: 1; Ward, GGX, Beckmann: ``1 / (4π a²)``. A family's colour
-    times this is the Torrance–Sparrow Ks with the same peak radiance head-on.
-    """
-    one = np.ones(1)
-    return float(brdf_shape(model, one, one, np.zeros(1), roughness)[0])
-
-
 def _smith_log_derivatives(cos_t: np.ndarray, a: float, distribution: str) -> tuple[np.ndarray, np.ndarray]:
     """``∂ ln G1 / ∂ cos θ`` and ``∂ ln G1 / ∂ a`` of :func:`~nearlight.physics.reflectance.smith_g1`."""
     c2 = np.square(cos_t)

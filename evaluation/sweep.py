@@ -30,6 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from ..errors import UserError
 from ..files.yamlfile import load_yaml_file
 from ..files.dotted import set_dotted
+from ..physics.reflectance import LOBES
 from .renderers import RENDERERS, Renderer
 
 #: Built-in axes: name -> (applied after rendering?, meaning).
@@ -335,8 +336,8 @@ def _check_axis_value(path: str, name: str, label: Any, value: Any) -> None:
             except _VE as exc:
                 err = exc.errors()[0]
                 raise UserError(f"{where} {'.'.join(map(str, err['loc']))}: {err['msg']}") from None
-    if name == "bsdf" and not (value in ("torrance_sparrow", "ward") or isinstance(value, dict)):
-        raise UserError(f"{where} expected 'torrance_sparrow', 'ward' or a material mapping")
+    if name == "bsdf" and not (value in LOBES or isinstance(value, dict)):
+        raise UserError(f"{where} expected one of {', '.join(repr(m) for m in LOBES)} or a material mapping")
 
 
 def _check_set_axis(renderer: Renderer, base: dict, path: str, labels: Any) -> None:

@@ -234,6 +234,38 @@ def roughness_for_ts_sigma(model: str, sigma: float) -> float:
     return sigma / _lobe(model).ts_sigma_per_roughness
 
 
+def peak_shape(model: str, roughness: float) -> float:
+    """The shape at normal incidence and reflection (``cos θi = cos θr = 1``, α = 0), 1/sr.
+
+    Torrance–Sparrow: 1; Ward, GGX, Beckmann: ``1 / (4π a²)``. A lobe's colour
+    times this is the Torrance–Sparrow Ks with the same peak radiance head-on.
+    """
+    one = np.ones(1)
+    return float(brdf_shape(model, one, one, np.zeros(1), roughness)[0])
+
+
+def convert_bsdf(bsdf: Mapping[str, Any], model: str) -> dict[str, Any]:
+    """The BSDF dict of another lobe family with the same small-angle width and head-on peak.
+
+    Roughness by :func:`ts_sigma` and :func:`roughness_for_ts_sigma`, colour by
+    :func:`peak_shape` (Torrance–Sparrow → Ward: ``alpha = √2 σ``, ``rho_s =
+    4π alpha² ks``); keys that are neither (``kd``, ``polarization``...) are kept.
+
+    Raises
+    ------
+    ValueError
+        Either model without a closed form (not in :data:`LOBES`).
+    """
+    old, new = _lobe(bsdf.get("model", "torrance_sparrow")), _lobe(model)
+    rough = float(bsdf[old.roughness_key])
+    out = {k: v for k, v in bsdf.items() if k not in (old.colour_key, old.roughness_key)}
+    new_rough = roughness_for_ts_sigma(model, ts_sigma(bsdf.get("model", "torrance_sparrow"), rough))
+    colour = np.asarray(bsdf[old.colour_key], dtype=float) * peak_shape(bsdf.get("model", "torrance_sparrow"), rough)
+    out.update(model=model, **{new.colour_key: (colour / peak_shape(model, new_rough)).tolist(),
+                               new.roughness_key: new_rough})
+    return out
+
+
 def torrance_sparrow(cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, *, ks: Any, sigma: float) -> np.ndarray:
     """Simplified Torrance–Sparrow BRDF of the paper (eq. 6), 1/sr.
 
@@ -312,19 +344,20 @@ def ts_sigma_from_ward(alpha_w: float) -> float:
 
 
 def ward_from_torrance_sparrow(sigma: float, ks: np.ndarray) -> tuple[float, np.ndarray]:
-    """Ward ``(alpha, rho_s)`` with a Torrance–Sparrow lobe's width and peak.
+    """Ward ``(alpha, rho_s)`` with a Torrance–Sparrow lobe's width and peak (:func:`convert_bsdf`).
 
     ``alpha = √2·σ`` (:func:`ward_alpha_from_ts`) and ``rho_s = 4π alpha² ks``
     (equal peak radiance at normal incidence).
     """
-    alpha = ward_alpha_from_ts(sigma)
-    return alpha, 4.0 * math.pi * alpha**2 * ks
+    out = convert_bsdf({"model": "torrance_sparrow", "ks": ks, "sigma": sigma}, "ward")
+    return out["alpha"], np.asarray(out["rho_s"])
 
 
 def torrance_sparrow_from_ward(alpha_w: float, rho_s: np.ndarray) -> tuple[float, np.ndarray]:
     """Torrance–Sparrow ``(sigma, ks)`` with a Ward lobe's width and peak: the inverse of
     :func:`ward_from_torrance_sparrow`."""
-    return ts_sigma_from_ward(alpha_w), rho_s / (4.0 * math.pi * alpha_w**2)
+    out = convert_bsdf({"model": "ward", "rho_s": rho_s, "alpha": alpha_w}, "torrance_sparrow")
+    return out["sigma"], np.asarray(out["ks"])
 
 
 def specular_brdf(g: Geometry, bsdf: Mapping[str, Any]) -> np.ndarray:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nearlight.estimator.lobes import FAMILIES, peak_shape, radiance_and_log_derivatives
-from nearlight.physics.reflectance import brdf_shape
+from nearlight.estimator.lobes import FAMILIES, radiance_and_log_derivatives
+from nearlight.physics.reflectance import brdf_shape, peak_shape
 
 ROUGHNESS = {"torrance_sparrow": 0.12, "ward": 0.17, "beckmann": 0.17, "ggx": 0.24}
 
