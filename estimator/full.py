@@ -22,8 +22,10 @@ ray begins at the hole's filled point
 from __future__ import annotations
 
 import time
+from typing import Annotated
 
 import numpy as np
+from pydantic import AfterValidator
 
 from ..capture import Capture
 from ..errors import UserError
@@ -39,8 +41,18 @@ from .result import Estimate
 from ..physics.reflectance import LOBES, peak_shape, roughness_for_ts_sigma, shading_geometry, ts_sigma
 
 LOSSES = ("huber", "soft_l1", "linear", "cauchy", "arctan")
-#: ``full``'s ``lobe`` option: a family, or ``auto``.
-LOBE_CHOICES = (*FAMILIES, "auto")
+
+
+def _lobe_choice(value: str) -> str:
+    """``auto``, one family, or several joined by ``+`` (automatic choice among those)."""
+    names = [v.strip() for v in value.split("+")]
+    if value != "auto" and not (names and all(n in FAMILIES for n in names) and len(set(names)) == len(names)):
+        raise ValueError(f"expected auto, one of {', '.join(FAMILIES)}, or several of them joined by +")
+    return value
+
+
+#: ``full``'s ``lobe`` option.
+LobeChoice = Annotated[str, AfterValidator(_lobe_choice)]
 #: Pixel-weight models of ``full``'s ``noise`` option.
 NOISE_MODELS = ("none", "auto")
 
@@ -162,7 +174,7 @@ def _chi2(model: PointLampModel, x: np.ndarray) -> float:
 def full_estimate(
     capture: Capture,
     *,
-    lobe: Choice(LOBE_CHOICES) = "auto",
+    lobe: LobeChoice = "auto",
     noise: Choice(NOISE_MODELS) = "none",
     loss: Choice(LOSSES) = "huber",
     f_scale: Positive | None = None,
@@ -209,8 +221,10 @@ def full_estimate(
     Parameters
     ----------
     capture : Capture
-    lobe : {"auto", "torrance_sparrow", "ward", "beckmann", "ggx"}
-        Lobe family fitted (see above).
+    lobe : str
+        ``"auto"`` (the default), one of ``"torrance_sparrow"``, ``"ward"``,
+        ``"beckmann"``, ``"ggx"``, or several joined by ``+`` (automatic choice
+        among those, e.g. ``"ward+ggx"``): the lobe family fitted (see above).
     noise : {"none", "auto"}
         Pixel weights (see above).
     separation : {"projected", "fit", "maxmin"}
@@ -273,7 +287,7 @@ def full_estimate(
     # the loss stays quadratic within a noise-free capture's float rounding: 1e-4 of the peak
     # unweighted, one standard deviation weighted (whose floor is that same 1e-4 of the peak)
     floor = 1e-4 * float(np.max(obs.specular[use])) if std is None else 1.0
-    families = FAMILIES if lobe == "auto" else (lobe,)
+    families = FAMILIES if lobe == "auto" else tuple(v.strip() for v in lobe.split("+"))
     shorts = {}
     for family in families:
         x0 = best.copy()
