@@ -238,7 +238,7 @@ def add_camera_noise(capture: Capture, *, noise: CameraNoise | Mapping[str, Any]
     noisy = {}
     for name, img in images.items():
         z_shot, z_read = draws.pop(name)
-        dn = record(img, z_shot, z_read, noise=noise, saturation=saturation).astype(np.float64)
+        dn = adc_counts(img, z_shot, z_read, noise=noise, saturation=saturation).astype(np.float64)
         noisy[name] = (dn * (saturation / (2**noise.bits - 1))).astype(np.float32)  # step 6
     record = {**noise.model_dump(mode="json"), "saturation": saturation, "seed": int(seed)}
     sensor = Sensor(saturation=saturation, full_well=float(noise.full_well), read_noise=float(noise.read_noise),
@@ -246,7 +246,7 @@ def add_camera_noise(capture: Capture, *, noise: CameraNoise | Mapping[str, Any]
     return capture.replace(**noisy, sensor=sensor, meta=_with_noise(capture.meta, "camera", record))
 
 
-def record(img: np.ndarray, z_shot: np.ndarray, z_read: np.ndarray, *, noise: CameraNoise,
+def adc_counts(img: np.ndarray, z_shot: np.ndarray, z_read: np.ndarray, *, noise: CameraNoise,
            saturation: float) -> np.ndarray:  # fmt: skip
     """What the camera's ADC reads for clean radiance ``img``: steps 1–5 of the module docstring.
 

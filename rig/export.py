@@ -3,7 +3,7 @@
 Writes, into a new folder, what :mod:`nearlight.rig.importer` reads back
 (``docs/rig-files.md``): a 16-bit PNG mosaic frame (``frame.png``: the IMX250
 pattern, mono or colour) with the generator's camera noise
-(:func:`nearlight.generator.noise.record`: shot and read noise, full well, ADC;
+(:func:`nearlight.generator.noise.adc_counts`: shot and read noise, full well, ADC;
 one home of that model), a depth map (``depth.png``, 16-bit, in units of
 ``depth_scale`` metres, millimetres by default; 0 = no return) seen by the
 camera itself, and the rig file (``rig.yaml``) with the calibration the
@@ -69,7 +69,7 @@ def export_rig(capture: Capture, out: str | os.PathLike, *, mosaic: str = "mono"
     Path
         ``out``.
     """
-    from ..generator.noise import noise_rngs, record
+    from ..generator.noise import adc_counts, noise_rngs
     from ..generator.scene import CameraNoise
 
     out = Path(out)
@@ -94,7 +94,7 @@ def export_rig(capture: Capture, out: str | os.PathLike, *, mosaic: str = "mono"
     saturation = auto_saturation(clean)
     rng, _ = noise_rngs(seed)
     z_shot, z_read = rng.standard_normal(clean.shape), rng.standard_normal(clean.shape)
-    dn = record(clean, z_shot, z_read, noise=noise, saturation=saturation)
+    dn = adc_counts(clean, z_shot, z_read, noise=noise, saturation=saturation)
 
     cam = capture.camera
     if cam.intrinsics is not None:
