@@ -3,8 +3,9 @@
 The steps, in order (``docs/rig-files.md``):
 
 1. each shot's frame(s) read as stored; a file whose ``row0`` is ``bottom`` is
-   flipped to row 0 at the top, and a mosaic pattern's angles negated with it
-   (a flip mirrors the image: counter-clockwise becomes clockwise);
+   flipped to row 0 at the top, and the angles (a mosaic pattern's, or
+   ``angles_deg``), given as stored, negated with it (a flip mirrors the
+   image: counter-clockwise becomes clockwise); angles are kept modulo 180°;
 2. a mosaic demosaiced by polanalyser (bilinear, ``COLOR_PolarMono`` /
    ``COLOR_PolarRGB``) on its stored digital numbers (uint16 as the sensor gave
    them; float frames are rescaled to uint16 by polanalyser itself);
@@ -138,9 +139,9 @@ def _shot(rig: RigFile, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         dn = np.stack([np.broadcast_to(np.asarray(im, float)[..., None], (*im.shape[:2], 3)) if im.ndim == 2
                        else np.asarray(im, float) for im in imgs])  # fmt: skip
         sat = (dn >= rig.black_level + SATURATED * span).any(axis=-1)
-        angles = rig.angles_deg
+        angles = -rig.angles_deg if rig.camera_row0 == "bottom" else rig.angles_deg
     v = np.clip((np.asarray(dn, float) - rig.black_level) / span, 0.0, None)
-    return inverse_response(v, rig.response_gamma, 1.0), sat, np.asarray(angles, float)
+    return inverse_response(v, rig.response_gamma, 1.0), sat, np.mod(np.asarray(angles, float), 180.0)
 
 
 def demosaic(frame: np.ndarray, pattern: np.ndarray, *, colour: bool) -> tuple[np.ndarray, np.ndarray]:

@@ -61,6 +61,9 @@ def test_full_lands_within_1_percent_of_its_estimate_on_the_original(tmp_path, m
     both = cap.surface_mask & imp.surface_mask
     assert (cap.surface_mask == imp.surface_mask).mean() > 0.999
     assert np.nanmax(np.abs(imp.P - cap.P)[both]) < 2e-6
+    # the rig file's noise model reaches capture.json's sensor (the names the estimator reads)
+    assert (imp.sensor.full_well, imp.sensor.read_noise, imp.sensor.bits) == (1e6, 5.0, 12)
+    assert imp.sensor.saturation == pytest.approx(float(mosaic_frame(cap, colour=mosaic == "colour").max()) / 0.9)
     lamp, sigma = lamp_change(cap, imp)
     # measured 0.59 % (mono, 160x120) and 0.50 % (colour, 320x240); the bar is 1 %
     assert lamp < 0.01 and abs(sigma) < 0.01
