@@ -44,6 +44,8 @@ from .rigfile import RigFile, load_rig_file
 
 #: A demosaiced pixel counts as saturated when a DN it was interpolated from is within this fraction of white level.
 SATURATED = 0.98
+#: When ``cv2.undistortPoints`` stops: 100 iterations, or a step below 1e-12 (normalised image coordinates).
+UNDISTORT_CRITERIA = (3, 100, 1e-12)  # cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS
 #: Mitsuba's camera axes (left, up, forward) from OpenCV's (right, down, forward).
 CV_TO_MITSUBA = np.diag([-1.0, -1.0, 1.0, 1.0])
 
@@ -224,7 +226,8 @@ def _depth_points(rig: RigFile) -> np.ndarray:
         import cv2
 
         pts = np.stack([u, v], axis=-1).astype(np.float64).reshape(-1, 1, 2)
-        xy = cv2.undistortPoints(pts, d.K, np.asarray(d.distortion, float)).reshape(-1, 2)
+        # iterated to convergence (OpenCV's default stops after 5 iterations: pixels off under strong distortion)
+        xy = cv2.undistortPoints(pts, d.K, np.asarray(d.distortion, float), criteria=UNDISTORT_CRITERIA).reshape(-1, 2)
     else:
         xy = np.stack([(u - d.cx) / d.fx, (v - d.cy) / d.fy], axis=-1)
     X = np.concatenate([xy, np.ones((xy.shape[0], 1))], axis=1) * z[v, u][:, None]

@@ -102,9 +102,10 @@ def test_a_separate_depth_sensor_through_its_extrinsics(tmp_path):
     import_rig(rig, tmp_path / "c")
     imp = read_capture(tmp_path / "c")
     got = imp.surface_mask
-    # every imported point lies on the board's plane (to the depth's 0.1 mm quantisation along its ray)
+    # every imported point lies on the board's plane (to the depth's 0.1 mm quantisation along its ray):
+    # a wrong extrinsic or intrinsic would scale or tilt the depth sensor's rays off it
     assert np.abs(imp.P[got][:, 2]).max() < 1e-4
-    # and projects into the camera within half a pixel of the pixel it was put in (nearest pixel)
+    # placed in the pixel its projection into the camera rounds to (nearest pixel)
     local = (imp.P - pose[:3, 3]) @ pose[:3, :3]
     col = K["fx"] * local[..., 0] / local[..., 2] + K["cx"]
     row = K["fy"] * local[..., 1] / local[..., 2] + K["cy"]
@@ -122,3 +123,56 @@ def test_a_separate_depth_sensor_through_its_extrinsics(tmp_path):
     err = np.linalg.norm(imp.P - cap.P, axis=-1)
     assert np.all(err[both] <= bound[both])
     assert np.median(err[both] / bound[both]) > 0.2  # the resampling is really there
+
+
+def _distort(x, y, k1, k2, p1, p2, k3):
+    """OpenCV's lens model (5 coefficients), normalised coordinates: written here, independently of OpenCV."""
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2**3
+    return (x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+            y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y)  # fmt: skip
+
+
+def test_depth_distortion_is_undone(tmp_path):
+    # a depth camera (the camera itself) with barrel distortion: each depth pixel's ray is found here
+    # by fixed-point inversion of the lens model to 1e-13, and the depth map ray-cast along it
+    cap = analytic_capture(width=W, height=H)
+    K, pose = camera_calibration(cap)
+    dist = (-0.25, 0.08, 0.001, -0.0005, 0.0)
+    u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+    xd, yd = (u - K["cx"]) / K["fx"], (v - K["cy"]) / K["fy"]
+    x, y = xd.copy(), yd.copy()
+    for _ in range(500):
+        fx_, fy_ = _distort(x, y, *dist)
+        x, y = x - (fx_ - xd), y - (fy_ - yd)
+    assert np.abs(np.subtract(_distort(x, y, *dist), (xd, yd))).max() < 1e-13
+    d_world = np.stack([x, y, np.ones_like(x)], -1) @ pose[:3, :3].T
+    t = -pose[2, 3] / d_world[..., 2]
+    hit = pose[:3, 3] + t[..., None] * d_world
+    on_board = (t > 0) & (np.abs(hit[..., 0]) <= 0.2) & (np.abs(hit[..., 1]) <= 0.2)
+    np.save(tmp_path / "depth.npy", np.where(on_board, t, 0.0))
+    cv2.imwrite(str(tmp_path / "f.png"), np.full((H, W), 100, np.uint16))
+    rig = write_rig(tmp_path, {
+        "format": "nearlight-rig/1",
+        "camera": {"width": W, "height": H, "intrinsics": K, "pose": pose.tolist()},
+        "polarization": {"mosaic": "mono", "shots": [{"files": ["f.png"]}], "white_level": 4095},
+        "depth": {"file": "depth.npy", "intrinsics": K, "distortion": list(dist)},
+    })  # fmt: skip
+    import_rig(rig, tmp_path / "c")
+    imp = read_capture(tmp_path / "c")
+    got = imp.surface_mask
+    # each imported point is one of the ray-cast points (a wrong undistortion would put the depth on
+    # other rays: off the board's plane and away from every one of them)
+    from scipy.spatial import cKDTree
+
+    gap, _ = cKDTree(hit[on_board]).query(imp.P[got].astype(np.float64))
+    assert gap.max() < 1e-6  # float32 P of ~0.5 m: rounding ~3e-8
+    assert np.abs(imp.P[got][:, 2]).max() < 1e-6
+    # placed in the pixel its pinhole projection rounds to (the camera's images are undistorted)
+    local = (imp.P - pose[:3, 3]) @ pose[:3, :3]
+    col = K["fx"] * local[..., 0] / local[..., 2] + K["cx"]
+    row = K["fy"] * local[..., 1] / local[..., 2] + K["cy"]
+    assert np.abs(col - u)[got].max() <= 0.5 + 1e-6 and np.abs(row - v)[got].max() <= 0.5 + 1e-6
+    # without undoing the distortion the same depth map lands up to several pixels away (the test can fail)
+    shift = np.hypot((x - xd) * K["fx"], (y - yd) * K["fy"])[on_board]
+    assert shift.max() > 3
