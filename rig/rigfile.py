@@ -210,6 +210,13 @@ def load_rig_file(path: str | os.PathLike) -> RigFile:
     )  # fmt: skip
 
 
+def _all_numbers(x: Any) -> bool:
+    """Nested lists of YAML numbers only."""
+    if isinstance(x, list):
+        return all(_all_numbers(v) for v in x)
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
 class _Where:
     """Checks of rig-file values, each failing with one line naming the file and the key."""
 
@@ -251,8 +258,8 @@ class _Where:
     def numbers(self, v: Any, key: str, shape: tuple[int, ...] | None) -> np.ndarray:
         if v is None:
             raise UserError(f"{self.path}: {key}: missing")
-        try:
-            arr = np.asarray(v, dtype=float)
+        try:  # numbers only: numpy would also read "135" or true as a number
+            arr = np.asarray(v, dtype=float) if _all_numbers(v) else None
         except (TypeError, ValueError):
             arr = None
         if arr is None or not np.all(np.isfinite(arr)) or (shape is not None and arr.shape != shape):

@@ -76,6 +76,9 @@ CASES = {
     "unknown key": (lambda d, f: d["camera"].update(focal=3), "camera.focal: unknown key"),
     "not a rigid pose": (lambda d, f: d["camera"].update(pose=[[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]),
                          "camera.pose: expected a 4x4 rigid transform"),
+    "angles as text": (
+        lambda d, f: d["polarization"].update(pattern=[["90", 45], [135, 0]]),
+        "polarization.pattern: expected numbers of shape [2, 2]"),
     "wrong format": (lambda d, f: d.update(format="rig/9"), "format: expected 'nearlight-rig/1'"),
     "white below black": (lambda d, f: d["polarization"].update(black_level=5000), "polarization.white_level: expected a number > 5000"),
     "missing depth file": (lambda d, f: d["depth"].update(file="depth.jpg"), "depth.file: depth.jpg: no such file"),
