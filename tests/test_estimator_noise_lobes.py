@@ -34,7 +34,10 @@ def test_camera_noise_is_measured_from_the_stack_residuals():
     clean, cap = _noisy()
     sat = cap.meta["noise"]["camera"]["saturation"]
     gain = sat / CAMERA["full_well"]
-    model = camera_noise(cap)
+    stated = camera_noise(cap)  # the generator states its sensor in the capture
+    assert stated.source == "sensor" and stated.gain == pytest.approx(gain, rel=1e-12)
+    assert stated.read_var == pytest.approx((5.0 * gain) ** 2 + (sat / 4095) ** 2 / 12, rel=1e-12)
+    model = camera_noise(cap.replace(sensor=None))
     assert model.source == "stack residuals"
     assert model.gain == pytest.approx(gain, rel=0.10)
 
@@ -90,5 +93,5 @@ def test_noise_model_is_reported_when_asked():
     # default ("none") reports no model
     clean, cap = _noisy(seed=1, bsdf=BSDFS["torrance_sparrow"])
     weighted = estimate(cap, method="full", lobe="torrance_sparrow", noise="auto", n_starts=0)
-    assert weighted.stages["full"]["noise"]["source"] == "stack residuals"
+    assert weighted.stages["full"]["noise"]["source"] == "sensor"
     assert estimate(cap, method="full", lobe="torrance_sparrow", n_starts=0).stages["full"]["noise"] is None
