@@ -66,8 +66,10 @@ GGX = 0.5
 #: their dielectric Fresnel factor (index 1.49 in Mitsuba), so their lobe
 #: tilts with the angle of incidence as a real dielectric's does. Measured
 #: (Mitsuba 3.9.1, the §4.1 board at alpha = 0.14): ``pplastic``'s lobe (M00)
-#: is the Beckmann conductor's to 0.2 % down to 45 % of its peak, the GGX
-#: conductor's is 30 % narrower there, so ``pplastic`` is Beckmann here.
+#: is the Beckmann conductor's to 0.2 % down to 45 % of its peak, where the
+#: GGX conductor's is at 31 %: so ``pplastic`` maps as Beckmann. ``roughplastic``
+#: predicts no polarized light (its Mueller matrix depolarizes: the fit with
+#: the lamp's polarizer saw a zero lobe), so it is fitted unpolarized.
 LOBES: dict[str, Lobe] = {
     "beckmann": Lobe({"type": "roughconductor", "material": "none", "distribution": "beckmann"}, "alpha.value", BECKMANN),
     "ggx": Lobe({"type": "roughconductor", "material": "none", "distribution": "ggx"}, "alpha.value", GGX),
