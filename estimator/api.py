@@ -67,8 +67,8 @@ def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", **o
     capture : Capture or path-like
         A capture, or a capture directory to read.
     method : str, optional
-        ``"paper"`` (default), ``"paper-init"``, ``"full"``, ``"distant"`` or a
-        plug-in's ``"module:function"``.
+        ``"paper"`` (default), ``"paper-init"``, ``"full"``, ``"distant"``,
+        ``"render-compare"`` (:data:`EXTRA_METHODS`) or a plug-in's ``"module:function"``.
     **options
         Method options (see each method's docstring), e.g. ``t_max=2.0``;
         checked against the method's declaration before it runs

@@ -64,7 +64,6 @@ import numpy as np
 
 from ..capture import Capture
 from ..errors import UserError
-from ..estimator.observation import Observation
 from ..estimator.options import Choice, Count, Positive, forwards
 from ..estimator.paper import stage_one
 from ..estimator.pixels import fit_pixels
@@ -145,10 +144,11 @@ class PixelModel:
         an oblique ray its transmission axis is ``k × â``, ``â`` the absorbing
         axis projected normal to the ray direction ``k`` (Korger et al. 2013).
         The filter's factor ½ is left in Ks. The basis rotation is
-        ``mi.mueller.rotate_stokes_basis`` written with cos θ and sin θ from
-        dot and cross products: Mitsuba's goes through an angle whose
-        derivative is NaN where the two axes coincide (the NaN lamp gradient
-        behind a polarizer, docs/physics.md).
+        ``mi.mueller.rotate_stokes_basis`` (equal to it to 5e-7, measured)
+        written with cos θ and sin θ from dot and cross products: measured,
+        the lamp gradient through Mitsuba's own rotations
+        (``rotate_stokes_basis`` of the lamp's filter, ``to_world_mueller``)
+        was NaN; this one is finite and matches finite differences (tests).
         """
         import drjit as dr
 
