@@ -75,6 +75,42 @@ def test_gradient_matches_finite_differences():
 
 
 @pytest.mark.render
+def test_lamp_stokes_is_mitsubas_rotation_and_pplastic_is_beckmann():
+    """Two facts rendercompare relies on, against Mitsuba itself (analytic board, true lamp, alpha 0.14)."""
+    import drjit as dr
+
+    from nearlight.estimator.paper import stage_one
+    from nearlight.rendercompare.lobes import LOBES
+    from nearlight.rendercompare.method import PixelModel, _mitsuba
+
+    mi = _mitsuba()
+    cap = analytic_capture(width=48, height=36, analyzer_angles_deg=None)
+    _, obs = stage_one(cap, strict_t_max=False)
+    use = obs.surface
+    lamp = np.asarray(cap.truth["lamp_position"])
+
+    def model(name, polarizer=None):
+        return PixelModel(mi, LOBES[name], obs.P[use], obs.N[use], obs.camera_position, obs.specular[use],
+                          polarizer=polarizer)  # fmt: skip
+
+    m = model("beckmann", (np.array([1.0, 0.0, 0.0]), obs.peak_point))
+    p = mi.Point3f(*map(float, lamp))
+    forward = -m.si.sh_frame.to_local(dr.normalize(p - m.si.p))
+    ours = m._lamp_stokes(p, forward)
+    absorb = m.si.sh_frame.to_local(dr.cross(dr.normalize(m.polarizer[1] - p), m.polarizer[0]))
+    transmit = dr.normalize(dr.cross(forward, absorb - dr.dot(absorb, forward) * forward))
+    rot = mi.mueller.rotate_stokes_basis(forward, transmit, mi.mueller.stokes_basis(forward))
+    for i in (1, 2):  # float32 rounding of two different formulas
+        np.testing.assert_allclose(np.asarray(ours[i]), np.asarray(rot[i, 0] + rot[i, 1]), atol=2e-6)
+    # pplastic's lobe has the Beckmann conductor's width (lobes.py maps its alpha as Beckmann), not GGX's
+    shapes = {name: model(name).evaluate(lamp, 0.14)[0] for name in ("beckmann", "ggx", "pplastic")}
+    order = np.argsort(-shapes["beckmann"])[:200]  # the lobe down to about half its peak
+    rel = {name: g[order] / g[order[0]] for name, g in shapes.items()}
+    assert np.max(np.abs(rel["pplastic"] - rel["beckmann"])) < 0.01  # measured here: 0.0048 (GGX: 0.19)
+    assert np.max(np.abs(rel["ggx"] - rel["beckmann"])) > 0.05
+
+
+@pytest.mark.render
 def test_cli_estimates_with_render_compare(tmp_path, capsys):
     cap = write_capture(analytic_capture(width=48, height=36), tmp_path / "cap")
     out = tmp_path / "e.json"
