@@ -120,6 +120,7 @@ def test_cli_estimates_with_render_compare(tmp_path, capsys):
     assert '"bsdf": "pplastic"' in out.read_text()
 
 
+@pytest.mark.render  # load_method asks for the extra before it reads the options
 def test_options_are_checked_before_anything_runs():
     cap = analytic_capture(width=24, height=18)
     with pytest.raises(UserError, match=r"^option bsdf: Value error, expected one of beckmann, ggx, roughplastic, pplastic"):
