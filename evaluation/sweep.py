@@ -397,12 +397,13 @@ def _method(path: str, i: int, m: str | _Method, check: bool) -> Method:
     spec = _Method(method=m) if isinstance(m, str) else m
     if check:
         from ..estimator import METHODS, load_method
+        from ..estimator.api import EXTRA_METHODS
         from ..estimator.options import check_options
 
-        if ":" not in spec.method and spec.method not in METHODS:
+        if ":" not in spec.method and spec.method not in METHODS and spec.method not in EXTRA_METHODS:
             raise UserError(
                 f"{path}: methods[{i}]: unknown method {spec.method!r} "
-                f"(expected one of {', '.join(METHODS)} or module:function)"
+                f"(expected one of {', '.join([*METHODS, *EXTRA_METHODS])} or module:function)"
             )
         try:
             check_options(load_method(spec.method), spec.options, method=spec.method)
