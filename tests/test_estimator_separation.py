@@ -107,3 +107,31 @@ def test_normals_from_positions_board_exact_sphere_close():
     # Interior pixels: a plane through a 3x3 patch of a sphere is tilted by O(footprint²/R²): < 0.5°.
     # Silhouette pixels see few neighbours at grazing angles and can be far off.
     assert np.median(err) < 0.5
+
+
+def test_range_noise_is_measured_and_widens_the_normal_window():
+    # the fourth differences of the range measure Gaussian range noise (0.2 mm on a
+    # 320×240 board: ~70k runs, so the robust estimate's relative standard error is
+    # well under 1 %; 5 % allowed) and are blind to a noise-free sphere's curvature
+    # (below 1e-6 m); the window then grows until the predicted tilt is ≤ 1 mrad, and
+    # the normals beat the 3 × 3 planes' (measured medians 0.06° against 2.5°)
+    from nearlight.estimator.normals import choose_window, range_noise
+    from nearlight.generator.noise import add_range_noise
+
+    board = analytic_capture(width=320, height=240)
+    noisy = add_range_noise(board, sigma_m=2e-4, seed=0)
+    assert range_noise(noisy.P, noisy.camera.position) == pytest.approx(2e-4, rel=0.05)
+    sphere = analytic_capture(width=320, height=240, shape="sphere")
+    assert range_noise(sphere.P, sphere.camera.position) < 1e-6
+    assert choose_window(sphere.P, sphere.camera.position)[0] == 3
+    window = choose_window(noisy.P, noisy.camera.position)[0]
+    assert 15 <= window <= 31
+    m = board.surface_mask
+
+    def median_angle(N):
+        ok = m & np.all(np.isfinite(N), axis=-1)
+        return np.degrees(np.median(np.arccos(np.clip(np.sum(N[ok] * board.N[ok], axis=-1), -1, 1))))
+
+    adaptive = median_angle(normals_from_positions(noisy.P, noisy.camera.position))
+    plane3 = median_angle(normals_from_positions(noisy.P, noisy.camera.position, window=3))
+    assert adaptive < 0.2 and plane3 > 1.0
