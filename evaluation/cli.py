@@ -74,6 +74,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_quiet_option(p)
     p.set_defaults(run=_gsa)
 
+    from . import suite_cli
+
+    suite_cli.register(subparsers)  # suite build, suite verify, score
+
 
 def _check_executor(args: argparse.Namespace) -> None:
     """``--workers`` positive; ``--scheduler`` a ``tcp://HOST:PORT`` with the cluster extra installed."""
