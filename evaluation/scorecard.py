@@ -371,6 +371,8 @@ def scorecard_figure(card: Mapping[str, Any], path: Path) -> Path:
                 if g["category"] == cat:
                     ax.plot(x, 100 * np.array(g[metric]["recall"]), marker="o", ms=3, label=f"{g['value']} (n={g['n']})")
             ax.set_xscale("log")
+            ax.set_xticks(x, [f"{v:g}" for v in x])
+            ax.minorticks_off()
             ax.set_ylim(-3, 103)
             ax.grid(alpha=0.3)
             if i == 0:
