@@ -157,7 +157,7 @@ def _is_scorecard_md(p: Path) -> bool:
 
 def score_suite(
     suite_dir: str | Path, out: str | Path, *, method: str, options: Mapping[str, Any] | None = None,
-    workers: int = 1, scheduler: Any = None, progress: bool = True,
+    workers: int = 1, scheduler: Any = None, progress: bool = True, command: str | None = None,
 ) -> tuple[dict[str, Any] | None, dict[str, int]]:  # fmt: skip
     """Score ``method`` on every case of the built suite in ``suite_dir`` (resumed in ``out``).
 
@@ -173,6 +173,10 @@ def score_suite(
         Method options.
     workers, scheduler, progress
         As :func:`nearlight.evaluation.engine.run_sweep`.
+    command : str, optional
+        The command that regenerates ``out``, recorded in its ``provenance.json`` (with the hashes of
+        the code that scored, so a committed scorecard goes stale when that code changes) by the run
+        that completes it (default ``nearlight score SUITE_DIR --method METHOD --out OUT``).
 
     Returns
     -------
@@ -235,6 +239,11 @@ def score_suite(
         card["wall_s"] = time.perf_counter() - t_start
     elif (out / SCORECARD_JSON).is_file():  # a re-run that scored nothing keeps the wall time of the run that did
         card["wall_s"] = json.loads((out / SCORECARD_JSON).read_text()).get("wall_s")
+    if todo:  # a re-run that scored nothing leaves the record of the run that made the rows
+        from .provenance import record
+
+        record(out, command=command or f"nearlight score {suite_dir} --method {method} --out {out}",
+               entry_modules=[__name__])  # fmt: skip
     write_scorecard(card, out)
     return card, counts
 

@@ -132,8 +132,10 @@ def _score(args: argparse.Namespace) -> int:
 
     _check_executor(args)
     options = dict(parse_setting(item, example="energy=radiance") for item in args.set)
+    command = " ".join(["nearlight score", args.suite_dir, "--method", args.method, *(f"--set {s}" for s in args.set),
+                        "--out", args.out, *(["--workers", str(args.workers)] if args.workers > 1 else [])])  # fmt: skip
     card, n = _on_cluster(args, score_suite, args.suite_dir, args.out, method=args.method, options=options,
-                          progress=not args.quiet)  # fmt: skip
+                          progress=not args.quiet, command=command)  # fmt: skip
     print(f"score {args.method}: ran {n['ran']} case(s), skipped {n['skipped']} already scored, {n['failed']} "
           f"failed; " + ("scorecard written" if card else "INCOMPLETE"), file=sys.stderr)  # fmt: skip
     if card is None:

@@ -106,6 +106,12 @@ def test_oracle_reaches_full_recall_at_every_threshold(suite, plugins, tmp_path,
             assert g[metric]["median"] < 1e-4
     assert (out / "scorecard.md").read_text().startswith("# Scorecard: nl_score_plugins:oracle on tiny-v1 v1")
     assert (out / "scorecard.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # a committed scorecard goes stale when the code that scored changes (tests/test_reports_fresh.py)
+    from nearlight.evaluation import provenance
+
+    record = json.loads((out / "provenance.json").read_text())["parts"]["results"]
+    assert record["command"] == f"nearlight score {suite} --method nl_score_plugins:oracle --out {out}"
+    assert "evaluation/metrics.py" in record["code"] and provenance.stale(out) == []
 
 
 def test_highlight_point_guess_has_no_recall_below_ten_percent(suite, plugins, tmp_path):
