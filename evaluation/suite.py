@@ -242,10 +242,16 @@ def digest_deviation(a: Mapping[str, list], b: Mapping[str, list]) -> tuple[floa
 # --------------------------------------------------------------------------- building
 
 
+#: Keys of ``capture.json`` (a capture's ``meta``) that hold the truth in another form: the generator's
+#: record of the scene it rendered (lamp position, material), written beside every render.
+TRUTH_META = ("generator",)
+
+
 def strip_truth(capture: Any) -> Any:
-    """``capture`` as a method may see it: no ``truth``, no ``truth_*`` layer."""
+    """``capture`` as a method may see it: no ``truth``, no ``truth_*`` layer, no :data:`TRUTH_META` key."""
     extra = {k: v for k, v in capture.extra.items() if not k.startswith("truth")}
-    return capture.replace(truth=None, extra=extra)
+    meta = {k: v for k, v in capture.meta.items() if k not in TRUTH_META}
+    return capture.replace(truth=None, extra=extra, meta=meta)
 
 
 def build_case(payload: Mapping[str, Any], *, renderer: Any, cache_dir: str | None, folder: str) -> dict[str, Any]:

@@ -49,7 +49,7 @@ def highlight(capture):
 
 def peek(capture):
     """Record what a method is handed, then answer like the oracle."""
-    seen = {"truth": capture.truth, "layers": sorted(capture.extra)}
+    seen = {"truth": capture.truth, "layers": sorted(capture.extra), "meta_keys": sorted(capture.meta), "meta": json.dumps(capture.meta)}
     (HERE / f"peek-{capture.source.parent.name}.json").write_text(json.dumps(seen))
     return oracle(capture)
 
@@ -127,9 +127,13 @@ def test_method_gets_no_truth(suite, plugins, tmp_path):
     assert _score(suite, tmp_path / "peek", "nl_score_plugins:peek") == 0
     seen = [json.loads(p.read_text()) for p in sorted(plugins.glob("peek-*.json"))]
     assert len(seen) == N_CASES
+    lamps = [json.dumps(read_capture(suite / c["path"] / "truth").truth["lamp_position"])[1:-1].split(", ")
+             for c in read_manifest(suite)["cases"]]  # fmt: skip
     for s in seen:
         assert s["truth"] is None
         assert not any(k.startswith("truth") for k in s["layers"])
+        # nor in another form: the generator's record of the scene (lamp position, material) is gone
+        assert "generator" not in s["meta_keys"] and not any(x in s["meta"] for lamp in lamps for x in lamp)
 
 
 def test_a_method_reading_truth_gets_nothing_and_fails(suite, plugins, tmp_path):

@@ -73,7 +73,23 @@ def test_manifest_names_every_case_file_and_version(built):
     c = m["cases"][0]
     seen, truth = read_capture(out / c["path"] / "input"), read_capture(out / c["path"] / "truth")
     assert seen.truth is None and not any(k.startswith("truth") for k in seen.extra)
+    lamp = truth.truth["lamp_position"]
+    assert not any(repr(float(x)) in (out / c["path"] / "input" / "capture.json").read_text() for x in lamp)
     assert truth.truth is not None and "truth_specular" in truth.extra
+
+
+def test_strip_truth_drops_the_generators_scene_record(built):
+    """Mitsuba renders record their scene (lamp position, material) in capture.json's `generator`
+    key: the truth in another form, so it is not handed to a method either; other keys stay."""
+    from nearlight.evaluation.suite import strip_truth
+
+    _, out = built
+    cap = read_capture(out / "cases" / "000" / "truth")
+    cap = cap.replace(meta={**cap.meta, "generator": {"scene": {"lamp": {"position": [0.1, 0.2, 0.3]}}}, "rig_notes": "x"})
+    seen = strip_truth(cap)
+    assert seen.truth is None and "truth_specular" not in seen.extra
+    assert "generator" not in seen.meta and seen.meta["rig_notes"] == "x"
+    assert cap.truth is not None and "generator" in cap.meta  # the original is not changed
 
 
 def test_noisy_inputs_differ_from_their_truth_and_between_seeds(built):
