@@ -187,7 +187,7 @@ def score_suite(
     """
     from tqdm import tqdm
 
-    from .engine import _executor
+    from .engine import make_executor
     from .environment import code_version
     from .store import ResultStore
 
@@ -209,7 +209,7 @@ def score_suite(
     done = store.done_ids()
     todo = [c for c in manifest["cases"] if c["id"] not in done]
     version = code_version()
-    executor = _executor(workers, scheduler)
+    executor = make_executor(workers, scheduler)
     failed = 0
     try:
         futs = {executor.submit(score_case, {"folder": str(suite_dir / c["path"])}, method=method, options=options): c

@@ -346,14 +346,14 @@ def build_suite(
 
     from ..files.atomic import write_json
     from ..files.jsonable import jsonable
-    from .engine import _executor, task_payload
+    from .engine import make_executor, task_payload
 
     out = check_build_out(out, suite)
     out.mkdir(parents=True, exist_ok=True)
     renderer = suite.sweep.renderer
     cache = None if cache_dir is None else str(cache_dir)
     todo = [c for c in suite.cases if not _case_done(out / c.path)]
-    executor = _executor(workers, scheduler)
+    executor = make_executor(workers, scheduler)
     rendered = 0
     records: dict[str, dict] = {}
     try:

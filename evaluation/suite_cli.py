@@ -7,6 +7,7 @@ import sys
 
 from ..errors import UserError, require_extra
 from ..generator.cli import add_cache_options, add_quiet_option, cache_dir
+from .cli import check_executor
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -55,16 +56,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     s.set_defaults(run=_score)
 
 
-def _check_executor(args: argparse.Namespace) -> None:
-    from .cli import check_scheduler
-
-    if args.workers < 1:
-        raise UserError(f"--workers: expected a positive integer, got {args.workers}")
-    if args.scheduler is not None:
-        check_scheduler(args.scheduler)
-        require_extra("cluster")
-
-
 def _on_cluster(args: argparse.Namespace, fn, *a, **kw):
     """``fn`` on the chosen executor; a scheduler that cannot be reached is a one-line error."""
     if not args.scheduler:
@@ -78,7 +69,7 @@ def _on_cluster(args: argparse.Namespace, fn, *a, **kw):
 def _build(args: argparse.Namespace) -> int:
     from .suite import build_suite, check_build_out, load_suite
 
-    _check_executor(args)
+    check_executor(args)
     suite = load_suite(args.suite)
     if suite.sweep.renderer.extra is not None:
         require_extra(suite.sweep.renderer.extra)
@@ -130,7 +121,7 @@ def _score(args: argparse.Namespace) -> int:
     from ..files.yamlfile import parse_setting
     from .scorecard import SCORECARD_JSON, SCORECARD_MD, SCORECARD_PNG, score_suite
 
-    _check_executor(args)
+    check_executor(args)
     options = dict(parse_setting(item, example="energy=radiance") for item in args.set)
     command = " ".join(["nearlight score", args.suite_dir, "--method", args.method, *(f"--set {s}" for s in args.set),
                         "--out", args.out, *(["--workers", str(args.workers)] if args.workers > 1 else [])])  # fmt: skip
