@@ -309,7 +309,12 @@ def check_build_out(out: str | Path, suite: Suite) -> Path:
         manifest = out / MANIFEST
         if not manifest.is_file():
             raise UserError(f"{out}: not empty and not a built suite (no {MANIFEST}); choose another --out")
-        old = read_manifest(out)
+        try:
+            old = json.loads(manifest.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+            old = None
+        if not isinstance(old, dict) or old.get("format") != FORMAT:
+            raise UserError(f"{manifest}: not a manifest written by nearlight suite build; choose another --out")
         if old.get("cases_hash") != suite.cases_hash:
             raise UserError(
                 f"{out}: holds suite {old.get('suite')!r} v{old.get('version')} (cases {old.get('cases_hash')}), "
@@ -350,6 +355,8 @@ def build_suite(
 
     out = check_build_out(out, suite)
     out.mkdir(parents=True, exist_ok=True)
+    if not (out / MANIFEST).is_file():  # marks the folder as this suite's (incomplete) build: resumable
+        write_json(out / MANIFEST, jsonable(manifest_doc(suite, {})))
     renderer = suite.sweep.renderer
     cache = None if cache_dir is None else str(cache_dir)
     todo = [c for c in suite.cases if not _case_done(out / c.path)]
@@ -400,7 +407,8 @@ def _remove_partial_case(root: Path) -> None:
 
 
 def manifest_doc(suite: Suite, records: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
-    """The manifest of a built suite (docs/benchmark-suites.md names every field)."""
+    """The manifest of a built suite (docs/benchmark-suites.md names every field); ``complete`` is
+    false, and the cases carry no ``files`` and ``digests``, until every case has its record."""
     from .. import __version__
     from .environment import code_version, collect
 
@@ -417,6 +425,7 @@ def manifest_doc(suite: Suite, records: Mapping[str, Mapping[str, Any]]) -> dict
         "environment": collect(),
         "tolerance": {"digest_grid": DIGEST_GRID, "digest_rtol": DIGEST_RTOL},
         "categories": suite.categories,
+        "complete": all(c.case_id in records for c in suite.cases),
         "cases": [
             {
                 "id": c.case_id,
@@ -424,7 +433,7 @@ def manifest_doc(suite: Suite, records: Mapping[str, Mapping[str, Any]]) -> dict
                 "categories": c.categories,
                 "seed": c.task.seed,
                 "noisy": c.task.noisy,
-                **records[c.case_id],
+                **records.get(c.case_id, {}),
             }
             for c in suite.cases
         ],
@@ -454,9 +463,12 @@ def read_manifest_file(path: str | Path) -> dict[str, Any]:
         raise UserError(f"{path}: not a readable suite manifest ({' '.join(str(exc).split())})") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise UserError(f"{path}: format: expected {FORMAT!r} (a manifest written by nearlight suite build)")
-    for key in ("suite", "version", "cases_hash", "categories", "cases", "tolerance"):
+    for key in ("suite", "version", "cases_hash", "categories", "cases", "tolerance", "complete"):
         if key not in doc:
             raise UserError(f"{path}: {key}: missing")
+    if doc["complete"] is not True:
+        raise UserError(f"{path}: an interrupted build (complete: false); finish it: nearlight suite build "
+                        f"SUITE.yaml --out {path.parent}")  # fmt: skip
     return doc
 
 

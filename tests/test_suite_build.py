@@ -121,6 +121,24 @@ def test_resume_keeps_built_cases(built, tmp_path, capsys):
     assert json.loads((copy / "manifest.json").read_text())["cases"] == read_manifest(out)["cases"]
 
 
+def test_interrupted_build_is_refused_by_score_and_resumed_by_build(built, tmp_path, capsys):
+    from nearlight.evaluation.suite import manifest_doc
+
+    path, out = built
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    # what a build killed after its first 4 cases leaves: the provisional manifest, 2 cases missing
+    (copy / "manifest.json").write_text(json.dumps(manifest_doc(load_suite(path), {})))
+    for i in (4, 5):
+        shutil.rmtree(copy / "cases" / f"{i:03d}")
+    assert main(["score", str(copy), "--method", "full", "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "an interrupted build (complete: false)" in err
+    assert main(["suite", "build", str(path), "--out", str(copy), "--no-cache", "--quiet"]) == 0
+    assert f"built 2 case(s), kept {N_CASES - 2} already built" in capsys.readouterr().err
+    assert read_manifest(copy)["cases"] == read_manifest(out)["cases"]
+
+
 def test_tampered_file_fails_verify(built, tmp_path, capsys):
     _, out = built
     copy = tmp_path / "copy"
