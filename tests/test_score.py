@@ -159,6 +159,17 @@ def test_rerun_skips_scored_cases_and_rescores_a_lost_one(suite, plugins, tmp_pa
     assert _card(out)["groups"] == first["groups"]
 
 
+def test_two_worker_processes_give_the_same_rows(suite, plugins, tmp_path):
+    """Cases sent to spawned workers (each reads its case from the suite folder) score as in-process."""
+    from nearlight.evaluation.store import read_results
+
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert _score(suite, one, "distant") == 0 and _score(suite, two, "distant", "--workers", "2") == 0
+    rows = [read_results(d)[0].drop(columns="runtime_s").set_index("task_id").sort_index() for d in (one, two)]
+    pd.testing.assert_frame_equal(*rows)
+    assert _card(one)["groups"] == _card(two)["groups"]
+
+
 def test_bad_input_is_one_line_and_touches_nothing(suite, plugins, tmp_path, capsys):
     out = tmp_path / "o"
     assert _score(suite, out, "no-such-method") == 2

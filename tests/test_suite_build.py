@@ -235,3 +235,27 @@ def test_shipped_suites_load_at_their_pins():
     for f in files:
         suite = load_suite(f)
         assert suite.name == f.stem and suite.version >= 1
+
+
+@pytest.mark.render
+def test_a_mitsuba_suite_hands_methods_no_scene_record(tmp_path, capsys):
+    """One tiny Mitsuba case (32x24, the bench rig): the render's capture.json records the scene it
+    rendered (lamp position, material) under `generator`; the built input must not carry it."""
+    path = write_suite(tmp_path, name="mitsuba-v1", renderer="mitsuba", axes={}, seeds=1, categories=[], scene={
+        "camera": {"position": [0.0, -0.35, 0.5], "look_at": [0.0, 0.0, 0.0], "fov_x_deg": 50.0, "resolution": [32, 24]},
+        "object": {"type": "board", "size": [0.4, 0.4]},
+        "material": {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1, "kd": [0.3, 0.4, 0.35]},
+        "lamp": {"position": [0.05, 0.15, 0.35], "intensity": [2.0, 2.0, 2.0]},
+        "capture": {"analyzer_angles_deg": [0, 45, 90, 135]}, "realism": "bench"})  # fmt: skip
+    out = tmp_path / "built"
+    assert main(["suite", "build", str(path), "--out", str(out), "--quiet", "--no-cache"]) == 0
+    case = out / read_manifest(out)["cases"][0]["path"]
+    truth_json, input_json = (json.loads((case / sub / "capture.json").read_text()) for sub in ("truth", "input"))
+    assert "generator" in truth_json and "truth" in truth_json
+    assert "generator" not in input_json and "truth" not in input_json
+
+    def keys(doc):
+        return set(doc) | {k for v in doc.values() if isinstance(v, dict) for k in keys(v)} if isinstance(doc, dict) else set()
+
+    assert {"lamp", "material", "bsdf"} & keys(truth_json)  # what the truth side names ...
+    assert not {"lamp", "material", "bsdf", "scene"} & keys(input_json)  # ... the input does not, at any depth
