@@ -32,10 +32,11 @@ from .estimator import cli as estimator_cli
 from .evaluation import cli as evaluation_cli
 from .evaluation import reproduce_cli
 from .generator import cli as generator_cli
+from .rig import cli as rig_cli
 
 #: Modules whose ``register(subparsers)`` adds verbs, in help order. Importing
 #: them imports nothing heavy: Mitsuba is imported only when a verb that renders runs.
-VERB_MODULES = (reproduce_cli, generator_cli, estimator_cli, evaluation_cli)
+VERB_MODULES = (reproduce_cli, generator_cli, rig_cli, estimator_cli, evaluation_cli)
 
 
 def build_parser() -> argparse.ArgumentParser:

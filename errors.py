@@ -32,6 +32,7 @@ class UserError(Exception):
 EXTRAS = {
     "render": ("the renderer", ("mitsuba", "drjit")),
     "cluster": ("the cluster", ("dask", "distributed")),
+    "rig": ("the rig import (polanalyser, OpenCV)", ("polanalyser", "cv2")),
 }
 
 

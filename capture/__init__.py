@@ -2,7 +2,7 @@
 
 Specified in ``docs/capture-format.md``; :mod:`nearlight.capture.format` is its
 one reference implementation (reading, writing, the :class:`Capture` and
-:class:`Camera` records).
+:class:`Camera`, :class:`Intrinsics`, :class:`Rig` and :class:`Sensor` records).
 """
 
 from .format import (
@@ -13,7 +13,9 @@ from .format import (
     JSON_NAME,
     Camera,
     Capture,
+    Intrinsics,
     Rig,
+    Sensor,
     capture_json,
     read_capture,
     write_capture,
@@ -27,7 +29,9 @@ __all__ = [
     "JSON_NAME",
     "Camera",
     "Capture",
+    "Intrinsics",
     "Rig",
+    "Sensor",
     "capture_json",
     "read_capture",
     "write_capture",

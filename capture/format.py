@@ -49,6 +49,64 @@ _POL = re.compile(r"^pol(\d+)$")
 
 
 @dataclasses.dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics of a capture's images (``capture.json``'s ``camera.intrinsics``, v2), OpenCV's convention.
+
+    A camera-frame point ``(x, y, z)`` (x right, y down, z forward, metres)
+    lands at column ``fx·x/z + cx``, row ``fy·y/z + cy``, pixels, with pixel
+    ``(0, 0)``'s centre at ``(0, 0)`` and row 0 at the top (nearlight's image
+    coordinates put that centre at ``(0.5, 0.5)``). The images are undistorted:
+    a rig's lens distortion is undone before a capture is written.
+
+    Attributes
+    ----------
+    fx, fy : float
+        Focal lengths, pixels (> 0).
+    cx, cy : float
+        Principal point, pixels.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Sensor:
+    """The camera's noise model (``capture.json``'s ``sensor``, v2), when known: Poisson–Gaussian per pixel.
+
+    A pixel of radiance ``L`` collects ``L / saturation · full_well`` electrons
+    on average (Poisson), plus Gaussian read noise of ``read_noise`` electrons
+    rms, clipped to the full well and read by a ``bits``-bit ADC over it; so
+    its variance in radiance units is about ``(saturation / full_well)² ·
+    (L / saturation · full_well + read_noise²)`` below saturation, plus the
+    ADC's step² / 12 (step ``saturation / (2^bits − 1)``). The generator's
+    model (:mod:`nearlight.generator.noise`) and its field names.
+
+    Attributes
+    ----------
+    saturation : float
+        Radiance (the capture's image units) that fills the full well, > 0.
+    full_well : float
+        Electrons at saturation, > 0.
+    read_noise : float
+        Read noise, electrons rms, ≥ 0.
+    bits : int
+        ADC bits, 1 to 32.
+    """
+
+    saturation: float
+    full_well: float
+    read_noise: float
+    bits: int
+
+
+#: The keys of ``capture.json``'s ``sensor``, in order (all required when the section is present).
+SENSOR_KEYS = ("saturation", "full_well", "read_noise", "bits")
+
+
+@dataclasses.dataclass(frozen=True)
 class Camera:
     """Pinhole camera of a capture.
 
@@ -62,11 +120,16 @@ class Camera:
         optional.
     fov_x_deg : float or None
         Horizontal field of view, degrees; optional.
+    intrinsics : Intrinsics or None
+        Pinhole intrinsics in OpenCV's convention (v2, optional): what a
+        calibrated rig knows; for any camera whose principal point is not the
+        image centre or whose pixels are not square.
     """
 
     position: np.ndarray
     to_world: np.ndarray | None = None
     fov_x_deg: float | None = None
+    intrinsics: Intrinsics | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,6 +188,9 @@ class Capture:
     rig : Rig
         What the rig knows about itself by calibration (v2); estimators may
         read it. ``Rig()`` (ideal) for v1 captures.
+    sensor : Sensor or None
+        The camera's noise model (v2 ``sensor``), when known; estimators may
+        read it to weigh pixels by their variance. None: unknown (and for v1).
     extra : dict of str to ndarray
         Every other EXR layer: ``[H, W, 3]`` for three-channel layers
         (``truth_specular``, ``S0``...), ``[H, W]`` for single channels
@@ -147,6 +213,7 @@ class Capture:
     lamp_polarizer_axis: np.ndarray | None = None
     truth: dict | None = None
     rig: Rig = dataclasses.field(default_factory=Rig)
+    sensor: Sensor | None = None
     extra: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
     meta: dict[str, Any] = dataclasses.field(default_factory=dict)
     source: Path | None = None
@@ -225,6 +292,7 @@ def read_capture(path: str | os.PathLike) -> Capture:
     fov = cam.get("fov_x_deg")
     if fov is not None and not (_is_number(fov) and 0 < fov < 180):
         raise UserError(f"{json_path}: camera.fov_x_deg: expected a number in (0, 180), got {fov!r}")
+    intrinsics = _intrinsics(cam.get("intrinsics"), json_path) if v2 else None
     angles = take("analyzer_angles_deg")
     if angles is not None:
         angles = _vector(angles, json_path, "analyzer_angles_deg", None)
@@ -233,9 +301,10 @@ def read_capture(path: str | os.PathLike) -> Capture:
     axis = take("lamp_polarizer_axis")
     axis = None if axis is None else _vector(axis, json_path, "lamp_polarizer_axis", (3,))
     truth = take("truth")
-    rig = Rig()
+    rig, sensor = Rig(), None
     if v2:
         rig = _rig(take("rig"), json_path)
+        sensor = _sensor(take("sensor"), json_path)
         _check_truth_v2(truth, json_path)
 
     if not exr_path.is_file():
@@ -300,7 +369,8 @@ def read_capture(path: str | os.PathLike) -> Capture:
     return Capture(
         width=width,
         height=height,
-        camera=Camera(position=position, to_world=to_world, fov_x_deg=None if fov is None else float(fov)),
+        camera=Camera(position=position, to_world=to_world, fov_x_deg=None if fov is None else float(fov),
+                      intrinsics=intrinsics),
         P=P,
         N=N,
         stack=stack,
@@ -310,6 +380,7 @@ def read_capture(path: str | os.PathLike) -> Capture:
         lamp_polarizer_axis=axis,
         truth=truth,
         rig=rig,
+        sensor=sensor,
         extra=extra,
         meta=meta,
         source=folder,
@@ -424,6 +495,43 @@ def _rig(x: Any, where: Path) -> Rig:
         ),
         other=other,
     )
+
+
+def _intrinsics(x: Any, where: Path) -> Intrinsics | None:
+    """``camera.intrinsics`` of a v2 ``capture.json`` (absent or null: None)."""
+    if x is None:
+        return None
+    if not isinstance(x, dict):
+        raise UserError(f"{where}: camera.intrinsics: expected an object {{fx, fy, cx, cy}}, got {x!r}")
+    values = {}
+    for key in ("fx", "fy", "cx", "cy"):
+        v = x.get(key)
+        if not _is_number(v) or (key in ("fx", "fy") and v <= 0):
+            want = "a number > 0" if key in ("fx", "fy") else "a number"
+            raise UserError(f"{where}: camera.intrinsics.{key}: expected {want}, got {v!r}")
+        values[key] = float(v)
+    return Intrinsics(**values)
+
+
+def _sensor(x: Any, where: Path) -> Sensor | None:
+    """``sensor`` of a v2 ``capture.json`` (absent or null: None, the noise model unknown)."""
+    if x is None:
+        return None
+    if not isinstance(x, dict):
+        raise UserError(f"{where}: sensor: expected an object {{{', '.join(SENSOR_KEYS)}}}, got {x!r}")
+    unknown = sorted(set(x) - set(SENSOR_KEYS))
+    if unknown:
+        raise UserError(f"{where}: sensor.{unknown[0]}: unknown key (expected {', '.join(SENSOR_KEYS)})")
+    for key in ("saturation", "full_well"):
+        if not (_is_number(x.get(key)) and x[key] > 0):
+            raise UserError(f"{where}: sensor.{key}: expected a number > 0, got {x.get(key)!r}")
+    if not (_is_number(x.get("read_noise")) and x["read_noise"] >= 0):
+        raise UserError(f"{where}: sensor.read_noise: expected a number >= 0, got {x.get('read_noise')!r}")
+    bits = x.get("bits")
+    if not (isinstance(bits, int) and not isinstance(bits, bool) and 1 <= bits <= 32):
+        raise UserError(f"{where}: sensor.bits: expected an integer from 1 to 32, got {bits!r}")
+    return Sensor(saturation=float(x["saturation"]), full_well=float(x["full_well"]),
+                  read_noise=float(x["read_noise"]), bits=bits)  # fmt: skip
 
 
 def _check_truth_v2(truth: Any, where: Path) -> None:
@@ -585,6 +693,8 @@ def capture_json(capture: Capture) -> dict[str, Any]:
         cam["to_world"] = _list(capture.camera.to_world)
     if capture.camera.fov_x_deg is not None:
         cam["fov_x_deg"] = float(capture.camera.fov_x_deg)
+    if capture.camera.intrinsics is not None:
+        cam["intrinsics"] = {k: float(v) for k, v in dataclasses.asdict(capture.camera.intrinsics).items()}
     doc: dict[str, Any] = {
         "format": FORMAT,
         "units": "m",
@@ -603,6 +713,10 @@ def capture_json(capture: Capture) -> dict[str, Any]:
             doc["rig"][key] = float(getattr(rig, key))
     for key, value in rig.other.items():
         doc["rig"].setdefault(key, jsonable(value))
+    if capture.sensor is not None:
+        sensor = capture.sensor
+        doc["sensor"] = {"saturation": float(sensor.saturation), "full_well": float(sensor.full_well),
+                         "read_noise": float(sensor.read_noise), "bits": int(sensor.bits)}  # fmt: skip
     if capture.truth is not None:
         doc["truth"] = jsonable(capture.truth)
     for key, value in capture.meta.items():

@@ -9,7 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..capture import Capture, read_capture
-from ..errors import UserError
+from ..errors import UserError, require_extra
 from .distant import distant_estimate
 from .full import full_estimate
 from .options import check_options
@@ -23,6 +23,8 @@ METHODS: dict[str, Callable[..., Estimate]] = {
     "full": full_estimate,
     "distant": distant_estimate,
 }
+#: Methods of an extra, by name: (extra, ``module:function``), imported only when asked for.
+EXTRA_METHODS = {"render-compare": ("render", "nearlight.rendercompare.method:render_compare_estimate")}
 
 
 def load_method(spec: str) -> Callable[..., Estimate]:
@@ -41,6 +43,9 @@ def load_method(spec: str) -> Callable[..., Estimate]:
     """
     if spec in METHODS:
         return METHODS[spec]
+    if spec in EXTRA_METHODS:
+        require_extra(EXTRA_METHODS[spec][0])
+        spec = EXTRA_METHODS[spec][1]
     module_name, sep, func_name = spec.partition(":")
     if not sep or not module_name or not func_name:
         raise UserError(f"method: expected one of {', '.join(METHODS)} or module:function, got {spec!r}")
@@ -62,8 +67,8 @@ def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", **o
     capture : Capture or path-like
         A capture, or a capture directory to read.
     method : str, optional
-        ``"paper"`` (default), ``"paper-init"``, ``"full"``, ``"distant"`` or a
-        plug-in's ``"module:function"``.
+        ``"paper"`` (default), ``"paper-init"``, ``"full"``, ``"distant"``,
+        ``"render-compare"`` (:data:`EXTRA_METHODS`) or a plug-in's ``"module:function"``.
     **options
         Method options (see each method's docstring), e.g. ``t_max=2.0``;
         checked against the method's declaration before it runs
@@ -88,7 +93,7 @@ def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", **o
     if isinstance(capture, (str, os.PathLike, Path)):
         capture = read_capture(capture)
     clock = time.perf_counter()
-    if method in METHODS:
+    if method in METHODS or method in EXTRA_METHODS:
         result = fn(capture, **options)
     else:
         try:

@@ -18,11 +18,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "estimate",
         help="estimate the lamp position and specular reflectance of a capture",
         description="Estimate the lamp's 3-D position (m), Ks (rgb) and sigma (rad) from a capture directory "
-        "(format v1). Methods: paper, paper-init, full, distant, or a plug-in module:function.",
+        "(format v2; v1 read). Methods: paper, paper-init, full, distant, render-compare (needs the render extra), "
+        "or a plug-in module:function.",
     )
     p.add_argument("capture", metavar="DIR", help="capture directory (capture.json + capture.exr)")
     p.add_argument(
-        "--method", default="paper", help="paper | paper-init | full | distant | module:function (default paper)"
+        "--method", default="paper",
+        help="paper | paper-init | full | distant | render-compare | module:function (default paper)"
     )
     p.add_argument("--json", metavar="OUT", help="write the estimate as JSON here")
     p.add_argument("--plot", metavar="OUT.png", help="write E_p(t) and observed vs re-synthesised specular here")

@@ -182,7 +182,8 @@ def _mad(r: np.ndarray) -> float:
 #: ρ'(z) and ρ''(z) of scipy's losses, z = (residual / f_scale)².
 _LOSS_DERIVATIVES: dict[str, Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]] = {
     "soft_l1": lambda z: ((1 + z) ** -0.5, -0.5 * (1 + z) ** -1.5),
-    "huber": lambda z: (np.where(z <= 1, 1.0, z**-0.5), np.where(z <= 1, 0.0, -0.5 * z**-1.5)),
+    "huber": lambda z: (np.where(z <= 1, 1.0, np.maximum(z, 1.0) ** -0.5),
+                        np.where(z <= 1, 0.0, -0.5 * np.maximum(z, 1.0) ** -1.5)),
     "cauchy": lambda z: (1 / (1 + z), -1 / (1 + z) ** 2),
     "arctan": lambda z: (1 / (1 + z**2), -2 * z / (1 + z**2) ** 2),
 }

@@ -130,12 +130,21 @@ def rig_correction(specular: np.ndarray, diffuse: np.ndarray, *, analyzer_extinc
         if e is not None and not float(e) > 1.0:
             raise UserError(f"rig.{name} = {e}: that polarizer does not polarize (ε must exceed 1), "
                             "so there is no specular to separate")
-    ka, kl = (0.0 if e is None else 1.0 / float(e) for e in ratios.values())
-    if ka == 0.0 and kl == 0.0:
+    if analyzer_extinction_ratio is None and lamp_extinction_ratio is None:
         return specular, diffuse
+    ka = 0.0 if analyzer_extinction_ratio is None else 1.0 / float(analyzer_extinction_ratio)
     S0 = (specular + diffuse) / (1.0 + ka)
-    specular = specular / (1.0 - ka) * ((1.0 + kl) / (1.0 - kl))
+    specular = specular * specular_gain(analyzer_extinction_ratio, lamp_extinction_ratio)
     return specular, S0 - specular
+
+
+def specular_gain(analyzer_extinction_ratio: float | None, lamp_extinction_ratio: float | None) -> float:
+    """The factor :func:`rig_correction` multiplies the specular by: ``(1 + k_l) / ((1 − k_a)(1 − k_l))``, ``k = 1/ε``.
+
+    1 for an ideal rig (both None).
+    """
+    ka, kl = (0.0 if e is None else 1.0 / float(e) for e in (analyzer_extinction_ratio, lamp_extinction_ratio))
+    return (1.0 + kl) / ((1.0 - ka) * (1.0 - kl))
 
 
 def separate(stack: np.ndarray, angles_deg: np.ndarray, *, method: str = "fit",

@@ -7,10 +7,10 @@ covariance ``≥ F⁻¹``. :func:`crlb` computes that bound for any model by cen
 differences; :func:`specular_crlb` applies it to a capture's specular lobe.
 
 The specular model (what the bound is about): parameters
-``θ = (lamp x, y, z [m], Ks r, g, b, σ [rad])``, observations the specular
+``θ = (lamp x, y, z [m], colour r, g, b, roughness)``, observations the specular
 radiance ``Is`` of every surface pixel and channel, from
-:func:`nearlight.physics.reflectance.specular_radiance` with the Torrance–Sparrow lobe
-and unit intensity (Ks absorbs the lamp's intensity, as estimators report it).
+:func:`nearlight.physics.reflectance.specular_radiance` with the capture's own
+lobe family (Torrance–Sparrow, Ward, GGX or Beckmann) and unit intensity (Ks absorbs the lamp's intensity, as estimators report it).
 Is is not observed directly but through the analyzer stack
 ``y_k = c0 + c1 cos 2θ_k + c2 sin 2θ_k`` with the diffuse offset and the phase
 β free per pixel (nuisance parameters the estimators must also fit), so a stack
@@ -29,9 +29,10 @@ from typing import Any
 import numpy as np
 
 from ..estimator.fitting import central_jacobian
+from ..estimator.noise import sensor_noise, stokes_weights, variance
 from ..physics.camera import auto_saturation
-from ..physics.polarization import analyzer_matrix, aolp, linear_stokes, through_polarizer
-from ..physics.reflectance import specular_radiance
+from ..physics.polarization import aolp, linear_stokes, through_polarizer
+from ..physics.reflectance import LOBES, specular_radiance
 
 
 def crlb(model: Callable[[np.ndarray], np.ndarray], theta: Any, *, noise_var: Any, steps: Any) -> np.ndarray:
@@ -75,15 +76,11 @@ def specular_variance_factor(angles_deg: Any, beta: np.ndarray) -> np.ndarray:
     Returns
     -------
     ndarray, shape (...)
-        ``4 uᵀ C u``: multiply by the per-image noise variance ``v``. Equals
-        ``8 / K`` for K equally spaced angles.
+        ``Σ_k w_k²`` of :func:`nearlight.estimator.noise.stokes_weights` (``4 uᵀ C u``
+        above): multiply by the per-image noise variance ``v``. Equals ``8 / K``
+        for K equally spaced angles.
     """
-    # With the analyzer model's rows ½ (1, cos 2θ, sin 2θ) (A/2 of the A above), the (c1, c2)
-    # block of ((A/2)ᵀ(A/2))⁻¹ is 4 C exactly (a power-of-two scale), so 4 uᵀ C u = uᵀ (4 C) u.
-    half = analyzer_matrix(angles_deg)
-    C4 = np.linalg.inv(half.T @ half)[1:, 1:]
-    u = np.stack([np.cos(2.0 * beta), np.sin(2.0 * beta)], axis=-1)
-    return np.einsum("...i,ij,...j->...", u, C4, u)
+    return np.sum(np.square(stokes_weights(angles_deg, beta)), axis=0)
 
 
 def stack_phase(stack: np.ndarray, angles_deg: Any) -> np.ndarray:
@@ -122,21 +119,22 @@ def camera_noise_variance(stack: np.ndarray, *, noise: Any) -> np.ndarray:
 
     if not isinstance(noise, CameraNoise):
         noise = CameraNoise.model_validate(dict(noise))
-    L = np.clip(np.nan_to_num(np.asarray(stack, dtype=float)), 0.0, None)
+    L = np.nan_to_num(np.asarray(stack, dtype=float))
     saturation = auto_saturation(stack) if noise.saturation == "auto" else float(noise.saturation)
-    g = saturation / noise.full_well
-    q = saturation / (2**noise.bits - 1)
-    return g * L + (g * noise.read_noise) ** 2 + q**2 / 12.0
+    model = sensor_noise(saturation=saturation, full_well=noise.full_well, read_noise=noise.read_noise, bits=noise.bits)
+    return variance(L, model)
 
 
 def specular_crlb(capture: Any, *, noise_var: np.ndarray) -> dict[str, float]:
-    """CRLB of the lamp position and σ for a Torrance–Sparrow capture with an analyzer stack.
+    """CRLB of the lamp position and roughness for a capture with an analyzer stack, any lobe family.
 
     Parameters
     ----------
     capture : Capture
-        Noise-free capture with ``stack``, ``N`` and ``truth`` (model
-        ``torrance_sparrow``).
+        Noise-free capture with ``stack``, ``N`` and ``truth``, whose BSDF
+        model is one of :data:`nearlight.physics.reflectance.LOBES`
+        (Torrance–Sparrow, Ward, GGX, Beckmann): the bound is for a fit of
+        that same family.
     noise_var : ndarray, shape (K, H, W, 3) or (H, W, 3) or float
         Variance of the camera noise of each analyzer image pixel, radiance
         units squared (the noise model evaluated at the noise-free stack).
@@ -146,16 +144,19 @@ def specular_crlb(capture: Any, *, noise_var: np.ndarray) -> dict[str, float]:
     dict
         ``crlb_lamp_m``: ``sqrt(trace)`` of the lamp-position block, metres
         (a lower bound on the RMS lamp position error);
-        ``crlb_sigma_rel``: the bound on σ's standard deviation divided by σ.
+        ``crlb_sigma_rel``: the bound on the roughness's standard deviation
+        divided by it (the same for its Torrance–Sparrow σ, a fixed multiple).
     """
     truth = capture.truth
     bsdf = truth["bsdf"]
+    lobe = LOBES[bsdf["model"]]
     mask = capture.surface_mask & np.all(np.isfinite(capture.N), axis=-1)
     P, N = np.asarray(capture.P, float)[mask], np.asarray(capture.N, float)[mask]
     cam = np.asarray(capture.camera.position, float)
     lamp = np.asarray(truth["lamp_position"], float)
-    ks = np.asarray(bsdf["ks"], float) * through_polarizer(truth.get("lamp_intensity", 2.0))
-    sigma = float(bsdf["sigma"])
+    colour = np.broadcast_to(np.asarray(bsdf[lobe.colour_key], float), (3,)) * through_polarizer(
+        truth.get("lamp_intensity", 2.0))
+    rough = float(bsdf[lobe.roughness_key])
     nv = np.broadcast_to(np.asarray(noise_var, float), capture.stack.shape)
     # Per-image variances of one pixel differ only through shot noise; their mean is what the fit sees.
     v = nv.mean(axis=0)[mask]
@@ -163,14 +164,14 @@ def specular_crlb(capture: Any, *, noise_var: np.ndarray) -> dict[str, float]:
     var_is = v * specular_variance_factor(capture.analyzer_angles_deg, beta)
 
     def model(theta: np.ndarray) -> np.ndarray:
-        b = {"model": "torrance_sparrow", "ks": theta[3:6], "sigma": theta[6]}
+        b = {"model": bsdf["model"], lobe.colour_key: theta[3:6], lobe.roughness_key: theta[6]}
         return specular_radiance(P, N, cam, theta[:3], 1.0, b)
 
-    theta = np.concatenate([lamp, ks, [sigma]])
+    theta = np.concatenate([lamp, colour, [rough]])
     scale = float(np.linalg.norm(lamp - P.mean(axis=0)))
-    steps = np.concatenate([np.full(3, 1e-6 * scale), 1e-6 * np.maximum(ks, 1e-12), [1e-6 * sigma]])
+    steps = np.concatenate([np.full(3, 1e-6 * scale), 1e-6 * np.maximum(colour, 1e-12), [1e-6 * rough]])
     cov = crlb(model, theta, noise_var=var_is, steps=steps)
     return {
         "crlb_lamp_m": float(np.sqrt(np.trace(cov[:3, :3]))),
-        "crlb_sigma_rel": float(np.sqrt(cov[6, 6]) / sigma),
+        "crlb_sigma_rel": float(np.sqrt(cov[6, 6]) / rough),
     }

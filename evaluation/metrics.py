@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from ..physics.polarization import through_polarizer
-from ..physics.reflectance import shading_geometry, ts_sigma_from_ward
+from ..physics.reflectance import LOBES, shading_geometry, ts_sigma
 from .resynthesis import resynthesize
 
 #: Metric columns (all "lower is better"), in table order, with their units.
@@ -281,16 +281,16 @@ def highlight_point(P: np.ndarray, N: np.ndarray, camera_position: Any, lamp_pos
 def truth_sigma(bsdf: Mapping[str, Any]) -> float:
     """The σ an estimate is compared with, radians.
 
-    Torrance–Sparrow: its ``sigma``; Ward: the small-angle equivalent
-    ``alpha / √2`` (:func:`~nearlight.physics.reflectance.ts_sigma_from_ward`);
-    any other model: NaN (no σ to compare with).
+    A model with a closed form (:data:`~nearlight.physics.reflectance.LOBES`):
+    the Torrance–Sparrow σ of its lobe's small-angle width
+    (:func:`~nearlight.physics.reflectance.ts_sigma`: Torrance–Sparrow its
+    ``sigma``, Ward and Beckmann ``alpha / √2``, GGX ``alpha / 2``); any
+    other model (a Mitsuba plug-in): NaN (no σ to compare with).
     """
     model = bsdf.get("model")
-    if model == "torrance_sparrow":
-        return float(bsdf["sigma"])
-    if model == "ward":
-        return ts_sigma_from_ward(float(bsdf["alpha"]))
-    return math.nan
+    if model not in LOBES:
+        return math.nan
+    return ts_sigma(model, float(bsdf[LOBES[model].roughness_key]))
 
 
 def truth_ks(bsdf: Mapping[str, Any]) -> np.ndarray | None:

@@ -24,31 +24,22 @@ import numpy as np
 from ..files.dotted import get_dotted, set_dotted
 from ..errors import UserError
 from ..files.yamlfile import load_yaml_file
-from ..physics.reflectance import torrance_sparrow_from_ward, ward_alpha_from_ts, ward_from_torrance_sparrow
+from ..physics.reflectance import LOBES, convert_bsdf, roughness_for_ts_sigma
 
 
 def convert_material(material: dict, model: str) -> dict:
-    """Switch a Torrance–Sparrow material to Ward or back, keeping the lobe's width and peak.
+    """Switch a material to another lobe family, keeping the lobe's small-angle width and head-on peak.
 
-    ``alpha = sqrt(2)·sigma`` and ``rho_s = 4π alpha² ks``
-    (:func:`nearlight.physics.reflectance.ward_from_torrance_sparrow` and its inverse);
-    other keys (kd, polarization, eta) are kept.
+    :func:`nearlight.physics.reflectance.convert_bsdf` (Torrance–Sparrow → Ward:
+    ``alpha = sqrt(2)·sigma`` and ``rho_s = 4π alpha² ks``); other keys (kd,
+    polarization, eta) are kept.
     """
     old = material.get("model", "torrance_sparrow")
-    out = dict(material, model=model)
     if old == model:
-        return out
-    if (old, model) == ("torrance_sparrow", "ward"):
-        sigma, ks = float(out.pop("sigma")), np.asarray(out.pop("ks"), dtype=float)
-        out["alpha"], rho_s = ward_from_torrance_sparrow(sigma, ks)
-        out["rho_s"] = rho_s.tolist()
-    elif (old, model) == ("ward", "torrance_sparrow"):
-        alpha, rho = float(out.pop("alpha")), np.asarray(out.pop("rho_s"), dtype=float)
-        out["sigma"], ks = torrance_sparrow_from_ward(alpha, rho)
-        out["ks"] = ks.tolist()
-    else:
+        return dict(material, model=model)
+    if old not in LOBES or model not in LOBES:
         raise UserError(f"cannot convert material model {old!r} to {model!r}: give the material as a mapping")
-    return out
+    return convert_bsdf({**material, "model": old}, model)
 
 
 #: Object keys that place a shape (kept when an ``object`` axis value changes the shape's type).
@@ -114,10 +105,9 @@ class Renderer:
             set_dotted(scene, self.polarization_key, value, where=where)
         elif name == "roughness":
             model = get_dotted(scene, f"{self.material_key}.model", "torrance_sparrow")
-            if model == "torrance_sparrow":
-                set_dotted(scene, f"{self.material_key}.sigma", float(value), where=where)
-            elif model == "ward":
-                set_dotted(scene, f"{self.material_key}.alpha", ward_alpha_from_ts(float(value)), where=where)
+            if model in LOBES:  # the axis is the Torrance–Sparrow σ; other families get their equivalent
+                set_dotted(scene, f"{self.material_key}.{LOBES[model].roughness_key}",
+                           roughness_for_ts_sigma(model, float(value)), where=where)
             else:
                 raise UserError(f"{where}: material model {model!r} has no roughness key; use a dotted scene key")
         elif name == "analyzer_angles":
@@ -200,8 +190,9 @@ class AnalyticRenderer(Renderer):
         bsdf = scene.get("bsdf")
         if bsdf is not None and not isinstance(bsdf, dict):
             raise UserError(f"{where}: bsdf: expected a mapping with a model key, got {bsdf!r}")
-        if bsdf is not None and bsdf.get("model") not in ("torrance_sparrow", "ward"):
-            raise UserError(f"{where}: bsdf.model: expected 'torrance_sparrow' or 'ward', got {bsdf.get('model')!r}")
+        if bsdf is not None and bsdf.get("model") not in LOBES:
+            raise UserError(f"{where}: bsdf.model: expected one of {', '.join(repr(m) for m in LOBES)}, "
+                            f"got {bsdf.get('model')!r}")
         for key, value in scene.items():
             kind = self.KINDS.get(key)
             if kind is not None and not _analytic_value_ok(kind, value):

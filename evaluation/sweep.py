@@ -30,6 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from ..errors import UserError
 from ..files.yamlfile import load_yaml_file
 from ..files.dotted import set_dotted
+from ..physics.reflectance import LOBES
 from .renderers import RENDERERS, Renderer
 
 #: Built-in axes: name -> (applied after rendering?, meaning).
@@ -335,8 +336,8 @@ def _check_axis_value(path: str, name: str, label: Any, value: Any) -> None:
             except _VE as exc:
                 err = exc.errors()[0]
                 raise UserError(f"{where} {'.'.join(map(str, err['loc']))}: {err['msg']}") from None
-    if name == "bsdf" and not (value in ("torrance_sparrow", "ward") or isinstance(value, dict)):
-        raise UserError(f"{where} expected 'torrance_sparrow', 'ward' or a material mapping")
+    if name == "bsdf" and not (value in LOBES or isinstance(value, dict)):
+        raise UserError(f"{where} expected one of {', '.join(repr(m) for m in LOBES)} or a material mapping")
 
 
 def _check_set_axis(renderer: Renderer, base: dict, path: str, labels: Any) -> None:
@@ -396,12 +397,13 @@ def _method(path: str, i: int, m: str | _Method, check: bool) -> Method:
     spec = _Method(method=m) if isinstance(m, str) else m
     if check:
         from ..estimator import METHODS, load_method
+        from ..estimator.api import EXTRA_METHODS
         from ..estimator.options import check_options
 
-        if ":" not in spec.method and spec.method not in METHODS:
+        if ":" not in spec.method and spec.method not in METHODS and spec.method not in EXTRA_METHODS:
             raise UserError(
                 f"{path}: methods[{i}]: unknown method {spec.method!r} "
-                f"(expected one of {', '.join(METHODS)} or module:function)"
+                f"(expected one of {', '.join([*METHODS, *EXTRA_METHODS])} or module:function)"
             )
         try:
             check_options(load_method(spec.method), spec.options, method=spec.method)

@@ -104,7 +104,8 @@ def analytic_capture(
         the default 2 makes that 1, so an estimator's Ks (which absorbs the
         lamp intensity) equals the BSDF's ``ks``.
     bsdf : mapping, optional
-        Specular BSDF dict (``torrance_sparrow`` or ``ward``); default
+        Specular BSDF dict (a model of :data:`nearlight.physics.reflectance.LOBES`:
+        ``torrance_sparrow``, ``ward``, ``ggx`` or ``beckmann``); default
         :data:`DEFAULT_BSDF`.
     kd : sequence of 3 floats
         Lambertian albedo.

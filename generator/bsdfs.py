@@ -1,8 +1,9 @@
-"""Polarized BSDF plugins: Torrance–Sparrow (paper eq. 6) and Ward (eq. 19).
+"""Polarized BSDF plugins: Torrance–Sparrow (paper eq. 6), Ward (eq. 19), GGX and Beckmann microfacet lobes.
 
 ``nearlight_bsdf`` is one Mitsuba BSDF returning Mueller matrices in polarized
-variants: a specular lobe (``model`` ``torrance_sparrow`` or ``ward``, the
-BRDFs of :mod:`nearlight.physics.reflectance`) plus a Lambertian, fully depolarizing
+variants: a specular lobe (``model`` ``torrance_sparrow``, ``ward``, ``ggx`` or
+``beckmann``, the BRDFs of :mod:`nearlight.physics.reflectance`, written again
+in Dr.Jit; ``tests/test_generator_physics.py`` holds the two together) plus a Lambertian, fully depolarizing
 diffuse lobe ``kd / π``. Every parameter is a plain number (one colour
 channel: the generator renders once per channel).
 
@@ -28,7 +29,7 @@ import math
 from types import ModuleType
 
 PLUGIN = "nearlight_bsdf"
-MODELS = ("torrance_sparrow", "ward")
+MODELS = ("torrance_sparrow", "ward", "ggx", "beckmann")
 POLARIZATIONS = ("ideal", "fresnel")
 
 
@@ -45,13 +46,28 @@ def register(mi: ModuleType) -> None:
 
     complex_type = dr.scalar.Complex2f if mi.variant().startswith("scalar") else dr.llvm.ad.Complex2f
 
+    def smith_g1(cos_t, a: float, distribution: str):
+        """Smith's masking (:func:`nearlight.physics.reflectance.smith_g1`)."""
+        tan2 = dr.maximum(1.0 - dr.square(cos_t), 0.0) / dr.square(cos_t)
+        if distribution == "ggx":
+            return 2.0 / (1.0 + dr.sqrt(1.0 + a * a * tan2))
+        x = dr.rsqrt(a * a * tan2)
+        return dr.select(x >= 1.6, 1.0, (3.535 * x + 2.181 * x * x) / (1.0 + 2.276 * x + 2.577 * x * x))
+
     def specular_lobe(model: str, rough: float, ks: float, cos_i, cos_r, cos_h):
-        """``f · cos θi`` of the specular BRDF (paper eq. 6 or 19), per channel."""
+        """``f · cos θi`` of the specular BRDF (paper eq. 6 or 19, or a microfacet lobe), per channel."""
         if model == "torrance_sparrow":
             alpha = dr.acos(dr.clip(cos_h, -1.0, 1.0))
             return ks * dr.exp(-dr.square(alpha) / (2.0 * rough * rough)) / cos_r
-        tan2 = (1.0 - dr.square(cos_h)) / dr.square(cos_h)
-        return ks * dr.exp(-tan2 / (rough * rough)) / (4.0 * math.pi * rough * rough) * dr.sqrt(cos_i / cos_r)
+        c2 = dr.square(cos_h)
+        tan2 = (1.0 - c2) / c2
+        if model == "ward":
+            return ks * dr.exp(-tan2 / (rough * rough)) / (4.0 * math.pi * rough * rough) * dr.sqrt(cos_i / cos_r)
+        if model == "ggx":
+            d = rough * rough / (math.pi * dr.square((rough * rough - 1.0) * c2 + 1.0))
+        else:
+            d = dr.exp(-tan2 / (rough * rough)) / (math.pi * rough * rough * c2 * c2)
+        return ks * d * smith_g1(cos_i, rough, model) * smith_g1(cos_r, rough, model) / (4.0 * cos_r)
 
     class NearlightBSDF(mi.BSDF):
         def __init__(self, props):

@@ -87,7 +87,7 @@ from typing import Any
 import numpy as np
 from scipy.special import ndtr
 
-from ..capture import Capture
+from ..capture import Capture, Sensor
 from ..physics.camera import auto_saturation
 from .scene import CameraNoise
 
@@ -221,7 +221,8 @@ def add_camera_noise(capture: Capture, *, noise: CameraNoise | Mapping[str, Any]
     -------
     Capture
         ``stack`` (and ``specular``/``diffuse`` if present) noisy, float32;
-        ``meta["noise"]["camera"]`` records the settings and the saturation used.
+        ``meta["noise"]["camera"]`` records the settings and the saturation used, and
+        ``sensor`` states the noise model (``saturation`` resolved to a number) for estimators.
     """
     if noise is None:
         return capture
@@ -234,27 +235,52 @@ def add_camera_noise(capture: Capture, *, noise: CameraNoise | Mapping[str, Any]
         saturation = float(noise.saturation)
     rng, _ = noise_rngs(seed)
     draws = {name: (rng.standard_normal(img.shape), rng.standard_normal(img.shape)) for name, img in images.items()}
-    levels = 2**noise.bits - 1
     noisy = {}
     for name, img in images.items():
         z_shot, z_read = draws.pop(name)
-        src, zs, zr = np.asarray(img).reshape(-1), z_shot.reshape(-1), z_read.reshape(-1)
-        out = np.empty(src.shape, np.float32)
-        for a in range(0, src.size, _BLOCK):  # blocks: small temporaries, re-used memory
-            b = min(a + _BLOCK, src.size)
-            lam = np.nan_to_num(src[a:b], nan=0.0).astype(np.float64)
-            np.clip(lam, 0.0, None, out=lam)
-            lam *= noise.full_well / saturation
-            e = shot_electrons(lam, zs[a:b])
-            e += noise.read_noise * zr[a:b]
-            np.clip(e, 0.0, noise.full_well, out=e)
-            e *= levels / noise.full_well
-            np.rint(e, out=e)
-            e *= saturation / levels
-            out[a:b] = e
-        noisy[name] = out.reshape(img.shape)
+        dn = adc_counts(img, z_shot, z_read, noise=noise, saturation=saturation).astype(np.float64)
+        noisy[name] = (dn * (saturation / (2**noise.bits - 1))).astype(np.float32)  # step 6
     record = {**noise.model_dump(mode="json"), "saturation": saturation, "seed": int(seed)}
-    return capture.replace(**noisy, meta=_with_noise(capture.meta, "camera", record))
+    sensor = Sensor(saturation=saturation, full_well=float(noise.full_well), read_noise=float(noise.read_noise),
+                    bits=int(noise.bits))  # fmt: skip
+    return capture.replace(**noisy, sensor=sensor, meta=_with_noise(capture.meta, "camera", record))
+
+
+def adc_counts(img: np.ndarray, z_shot: np.ndarray, z_read: np.ndarray, *, noise: CameraNoise,
+           saturation: float) -> np.ndarray:  # fmt: skip
+    """What the camera's ADC reads for clean radiance ``img``: steps 1–5 of the module docstring.
+
+    Parameters
+    ----------
+    img : ndarray, any shape
+        Clean radiance (NaN and negative values count as 0).
+    z_shot, z_read : ndarray, same shape
+        Standard normal draws for the shot and the read noise.
+    noise : CameraNoise
+    saturation : float
+        Radiance that fills the full well (resolved, not ``"auto"``).
+
+    Returns
+    -------
+    ndarray, same shape, float32
+        Digital numbers, integers in ``[0, 2^bits − 1]``; times
+        ``saturation / (2^bits − 1)`` they are radiance again (step 6).
+    """
+    levels = 2**noise.bits - 1
+    src, zs, zr = np.asarray(img).reshape(-1), z_shot.reshape(-1), z_read.reshape(-1)
+    out = np.empty(src.shape, np.float32)
+    for a in range(0, src.size, _BLOCK):  # blocks: small temporaries, re-used memory
+        b = min(a + _BLOCK, src.size)
+        lam = np.nan_to_num(src[a:b], nan=0.0).astype(np.float64)
+        np.clip(lam, 0.0, None, out=lam)
+        lam *= noise.full_well / saturation
+        e = shot_electrons(lam, zs[a:b])
+        e += noise.read_noise * zr[a:b]
+        np.clip(e, 0.0, noise.full_well, out=e)
+        e *= levels / noise.full_well
+        np.rint(e, out=e)
+        out[a:b] = e
+    return out.reshape(np.shape(img))
 
 
 def add_range_noise(capture: Capture, *, sigma_m: float, seed: int) -> Capture:

@@ -246,6 +246,27 @@ class Ward(_Analytic):
                 "polarization": self.polarization, "eta": self.eta, **self._texture_truth()}  # fmt: skip
 
 
+class Microfacet(_Analytic):
+    """A microfacet lobe, GGX or Beckmann distribution with Smith masking, Fresnel as a constant colour:
+    ``ks`` per channel, Mitsuba's roughness ``alpha`` (:func:`nearlight.physics.reflectance.microfacet`)."""
+
+    model: Literal["ggx", "beckmann"]
+    ks: RGB
+    alpha: PositiveFloat
+
+    @property
+    def roughness(self) -> float:
+        return self.alpha
+
+    @property
+    def specular(self) -> RGB:
+        return self.ks
+
+    def truth(self) -> dict[str, Any]:
+        return {"model": self.model, "ks": list(self.ks), "alpha": self.alpha, "kd": list(self.kd),
+                "polarization": self.polarization, "eta": self.eta, **self._texture_truth()}  # fmt: skip
+
+
 class MitsubaMaterial(_Model):
     """Any Mitsuba BSDF dict (e.g. ``{type: pplastic, ...}``) for model-mismatch studies.
 
@@ -266,7 +287,7 @@ class MitsubaMaterial(_Model):
         return {"model": self.model, "bsdf": self.bsdf}
 
 
-MaterialSpec = Annotated[Union[TorranceSparrow, Ward, MitsubaMaterial], Field(discriminator="model")]
+MaterialSpec = Annotated[Union[TorranceSparrow, Ward, Microfacet, MitsubaMaterial], Field(discriminator="model")]
 
 
 ExtinctionRatio = Annotated[float, Field(ge=1)]
@@ -446,7 +467,8 @@ class Scene(_Model):
         return self._source
 
 
-_TAGS = {"board", "sphere", "cylinder", "bookend", "torus", "mesh", "torrance_sparrow", "ward", "mitsuba"}
+_TAGS = {"board", "sphere", "cylinder", "bookend", "torus", "mesh", "torrance_sparrow", "ward", "ggx", "beckmann",
+         "mitsuba"}
 
 
 def load_scene(

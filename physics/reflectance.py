@@ -9,8 +9,15 @@ is a deliberate second implementation, tested against this one.
 Lengths in metres, angles in radians. Numpy only; imports no pipeline stage.
 
 BSDF parameter dicts are those of ``capture.json``'s ``truth.bsdf``:
-``{"model": "torrance_sparrow", "ks": [r, g, b], "sigma": s}`` or
-``{"model": "ward", "rho_s": [r, g, b], "alpha": a}``.
+``{"model": "torrance_sparrow", "ks": [r, g, b], "sigma": s}``,
+``{"model": "ward", "rho_s": [r, g, b], "alpha": a}``, or a microfacet lobe
+``{"model": "ggx" | "beckmann", "ks": [r, g, b], "alpha": a}``.
+
+Every specular model is a colour times a dimensionless *shape*,
+``f = k · shape(cos θi, cos θr, α; roughness)``: :func:`brdf_shape` is that
+shape by model name (:data:`LOBES` lists the models, their colour and
+roughness keys and their Torrance–Sparrow-equivalent width), and the
+colour-valued functions below multiply it out.
 """
 
 from __future__ import annotations
@@ -99,6 +106,166 @@ def torrance_sparrow_lobe(alpha: np.ndarray, sigma: Any) -> np.ndarray:
     return np.exp(-np.square(alpha) / (2.0 * sigma**2))
 
 
+def _ts_shape(cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, sigma: float) -> np.ndarray:
+    return torrance_sparrow_lobe(alpha, sigma) / (cos_i * cos_r)
+
+
+def _ward_shape(cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, alpha_w: float) -> np.ndarray:
+    with np.errstate(invalid="ignore"):
+        return np.exp(-np.square(np.tan(alpha)) / alpha_w**2) / (4.0 * np.pi * alpha_w**2 * np.sqrt(cos_i * cos_r))
+
+
+def beckmann_distribution(cos_h: np.ndarray, alpha: float) -> np.ndarray:
+    """Beckmann microfacet distribution ``D = exp(−tan²θh / α²) / (π α² cos⁴θh)``, 1/sr.
+
+    Normalised as ``∫ D cos θh dω = 1``; ``α`` is the RMS facet slope
+    (Mitsuba's ``alpha``).
+
+    Parameters
+    ----------
+    cos_h : ndarray
+        Cosine of the angle between the normal and the half vector.
+    alpha : float
+        Roughness (RMS slope), dimensionless.
+    """
+    c2 = np.square(cos_h)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        return np.exp(-(1.0 - c2) / (c2 * alpha**2)) / (np.pi * alpha**2 * c2 * c2)
+
+
+def ggx_distribution(cos_h: np.ndarray, alpha: float) -> np.ndarray:
+    """GGX (Trowbridge–Reitz) distribution ``D = α² / (π ((α² − 1) cos²θh + 1)²)``, 1/sr.
+
+    The same as ``α² / (π cos⁴θh (α² + tan²θh)²)``; normalised as
+    :func:`beckmann_distribution`.
+    """
+    return alpha**2 / (np.pi * np.square((alpha**2 - 1.0) * np.square(cos_h) + 1.0))
+
+
+def smith_g1(cos_t: np.ndarray, alpha: float, distribution: str) -> np.ndarray:
+    """Smith's masking of one direction at polar cosine ``cos_t``, dimensionless, as Mitsuba 3 computes it.
+
+    GGX: ``2 / (1 + √(1 + α² tan²θ))`` (exact). Beckmann: Walter et al.'s
+    (2007) rational approximation in ``a = 1 / (α tanθ)``,
+    ``(3.535 a + 2.181 a²) / (1 + 2.276 a + 2.577 a²)`` below ``a = 1.6``
+    and 1 above (within 0.35 % of the exact Smith term), which is what
+    Mitsuba 3's ``MicrofacetDistribution.smith_g1`` evaluates.
+    """
+    c2 = np.square(cos_t)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tan2 = np.clip(1.0 - c2, 0.0, None) / c2
+        if distribution == "ggx":
+            return 2.0 / (1.0 + np.sqrt(1.0 + alpha**2 * tan2))
+        a = 1.0 / (alpha * np.sqrt(tan2))
+        return np.where(a >= 1.6, 1.0, (3.535 * a + 2.181 * a * a) / (1.0 + 2.276 * a + 2.577 * a * a))
+
+
+def _microfacet_shape(distribution: str) -> Callable[..., np.ndarray]:
+    ndf = {"ggx": ggx_distribution, "beckmann": beckmann_distribution}[distribution]
+
+    def shape(cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, roughness: float) -> np.ndarray:
+        g = smith_g1(cos_i, roughness, distribution) * smith_g1(cos_r, roughness, distribution)
+        return ndf(np.cos(alpha), roughness) * g / (4.0 * cos_i * cos_r)
+
+    return shape
+
+
+class Lobe(NamedTuple):
+    """One specular model: ``f = colour · shape(cos θi, cos θr, α, roughness)``.
+
+    Attributes
+    ----------
+    shape : callable
+        ``shape(cos_i, cos_r, alpha, roughness) -> ndarray`` (1/sr per unit
+        colour), arrays of one shape; ``alpha`` is the half-vector angle.
+    colour_key, roughness_key : str
+        Keys of the model's BSDF dict.
+    ts_sigma_per_roughness : float
+        Torrance–Sparrow σ (radians) with this lobe's width at small angles,
+        per unit of its roughness: the peak curvature of ``exp(−α²/2σ²)``
+        matched to ``exp(−tan²α/a²)`` (Ward, Beckmann: ``1/√2``) or
+        ``(1 + tan²α/a²)⁻²`` (GGX: ``1/2``) as ``a → 0``.
+    """
+
+    shape: Callable[..., np.ndarray]
+    colour_key: str
+    roughness_key: str
+    ts_sigma_per_roughness: float
+
+
+#: Specular models by the ``model`` name used in scene files, ``truth.bsdf`` and the estimator's ``lobe``.
+LOBES: dict[str, Lobe] = {
+    "torrance_sparrow": Lobe(_ts_shape, "ks", "sigma", 1.0),
+    "ward": Lobe(_ward_shape, "rho_s", "alpha", 1.0 / math.sqrt(2.0)),
+    "beckmann": Lobe(_microfacet_shape("beckmann"), "ks", "alpha", 1.0 / math.sqrt(2.0)),
+    "ggx": Lobe(_microfacet_shape("ggx"), "ks", "alpha", 0.5),
+}
+
+
+def _lobe(model: str) -> Lobe:
+    try:
+        return LOBES[model]
+    except KeyError:
+        raise ValueError(f"no closed form for specular model {model!r} (expected one of {', '.join(LOBES)})") from None
+
+
+def brdf_shape(model: str, cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, roughness: float) -> np.ndarray:
+    """The specular BRDF of ``model`` per unit colour, 1/sr, shape of ``cos_i``.
+
+    Parameters
+    ----------
+    model : str
+        A key of :data:`LOBES`.
+    cos_i, cos_r, alpha : ndarray, shape (...)
+        Cosines of incidence and reflection; half-vector angle (radians).
+    roughness : float
+        The model's roughness (its :attr:`Lobe.roughness_key`).
+    """
+    return _lobe(model).shape(cos_i, cos_r, alpha, roughness)
+
+
+def ts_sigma(model: str, roughness: float) -> float:
+    """Torrance–Sparrow σ (radians) with the small-angle width of ``model``'s lobe at ``roughness``."""
+    return _lobe(model).ts_sigma_per_roughness * roughness
+
+
+def roughness_for_ts_sigma(model: str, sigma: float) -> float:
+    """``model``'s roughness whose lobe has the small-angle width of Torrance–Sparrow ``sigma``: the inverse of :func:`ts_sigma`."""
+    return sigma / _lobe(model).ts_sigma_per_roughness
+
+
+def peak_shape(model: str, roughness: float) -> float:
+    """The shape at normal incidence and reflection (``cos θi = cos θr = 1``, α = 0), 1/sr.
+
+    Torrance–Sparrow: 1; Ward, GGX, Beckmann: ``1 / (4π a²)``. A lobe's colour
+    times this is the Torrance–Sparrow Ks with the same peak radiance head-on.
+    """
+    one = np.ones(1)
+    return float(brdf_shape(model, one, one, np.zeros(1), roughness)[0])
+
+
+def convert_bsdf(bsdf: Mapping[str, Any], model: str) -> dict[str, Any]:
+    """The BSDF dict of another lobe family with the same small-angle width and head-on peak.
+
+    Roughness by :func:`ts_sigma` and :func:`roughness_for_ts_sigma`, colour by
+    :func:`peak_shape` (Torrance–Sparrow → Ward: ``alpha = √2 σ``, ``rho_s =
+    4π alpha² ks``); keys that are neither (``kd``, ``polarization``...) are kept.
+
+    Raises
+    ------
+    ValueError
+        Either model without a closed form (not in :data:`LOBES`).
+    """
+    old, new = _lobe(bsdf.get("model", "torrance_sparrow")), _lobe(model)
+    rough = float(bsdf[old.roughness_key])
+    out = {k: v for k, v in bsdf.items() if k not in (old.colour_key, old.roughness_key)}
+    new_rough = roughness_for_ts_sigma(model, ts_sigma(bsdf.get("model", "torrance_sparrow"), rough))
+    colour = np.asarray(bsdf[old.colour_key], dtype=float) * peak_shape(bsdf.get("model", "torrance_sparrow"), rough)
+    out.update(model=model, **{new.colour_key: (colour / peak_shape(model, new_rough)).tolist(),
+                               new.roughness_key: new_rough})
+    return out
+
+
 def torrance_sparrow(cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, *, ks: Any, sigma: float) -> np.ndarray:
     """Simplified Torrance–Sparrow BRDF of the paper (eq. 6), 1/sr.
 
@@ -116,8 +283,7 @@ def torrance_sparrow(cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, *,
     -------
     ndarray, shape (..., 3)
     """
-    lobe = torrance_sparrow_lobe(alpha, sigma) / (cos_i * cos_r)
-    return lobe[..., None] * np.broadcast_to(np.asarray(ks, dtype=float), (3,))
+    return _ts_shape(cos_i, cos_r, alpha, sigma)[..., None] * np.broadcast_to(np.asarray(ks, dtype=float), (3,))
 
 
 def ward(cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, *, rho_s: Any, alpha_w: float) -> np.ndarray:
@@ -137,9 +303,31 @@ def ward(cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, *, rho_s: Any,
     -------
     ndarray, shape (..., 3)
     """
-    with np.errstate(invalid="ignore"):
-        lobe = np.exp(-np.square(np.tan(alpha)) / alpha_w**2) / (4.0 * np.pi * alpha_w**2 * np.sqrt(cos_i * cos_r))
-    return lobe[..., None] * np.broadcast_to(np.asarray(rho_s, dtype=float), (3,))
+    return _ward_shape(cos_i, cos_r, alpha, alpha_w)[..., None] * np.broadcast_to(np.asarray(rho_s, dtype=float), (3,))
+
+
+def microfacet(cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, *, ks: Any, roughness: float,
+               distribution: str) -> np.ndarray:
+    """Microfacet BRDF ``f = Ks D(h) G1(i) G1(o) / (4 cos θi cos θr)``, 1/sr, constant Fresnel (in Ks).
+
+    ``D`` is :func:`ggx_distribution` or :func:`beckmann_distribution` and
+    ``G1`` Smith's (:func:`smith_g1`), as in Mitsuba 3's rough conductor with
+    its Fresnel factor taken as a constant colour.
+
+    Parameters
+    ----------
+    cos_i, cos_r, alpha : ndarray, shape (...)
+    ks : array_like, shape (3,) or scalar
+    roughness : float
+        Mitsuba's ``alpha``.
+    distribution : {"ggx", "beckmann"}
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+    """
+    shape = brdf_shape(distribution, cos_i, cos_r, alpha, roughness)
+    return shape[..., None] * np.broadcast_to(np.asarray(ks, dtype=float), (3,))
 
 
 def ward_alpha_from_ts(sigma: float) -> float:
@@ -147,43 +335,42 @@ def ward_alpha_from_ts(sigma: float) -> float:
 
     ``exp(−tan²α/α_w²) ≈ exp(−α²/2σ²)`` for small α.
     """
-    return math.sqrt(2.0) * sigma
+    return roughness_for_ts_sigma("ward", sigma)
 
 
 def ts_sigma_from_ward(alpha_w: float) -> float:
     """Torrance–Sparrow σ with the lobe width of Ward roughness ``alpha_w``: ``σ = α/√2``, radians."""
-    return alpha_w / math.sqrt(2.0)
+    return ts_sigma("ward", alpha_w)
 
 
 def ward_from_torrance_sparrow(sigma: float, ks: np.ndarray) -> tuple[float, np.ndarray]:
-    """Ward ``(alpha, rho_s)`` with a Torrance–Sparrow lobe's width and peak.
+    """Ward ``(alpha, rho_s)`` with a Torrance–Sparrow lobe's width and peak (:func:`convert_bsdf`).
 
     ``alpha = √2·σ`` (:func:`ward_alpha_from_ts`) and ``rho_s = 4π alpha² ks``
     (equal peak radiance at normal incidence).
     """
-    alpha = ward_alpha_from_ts(sigma)
-    return alpha, 4.0 * math.pi * alpha**2 * ks
+    out = convert_bsdf({"model": "torrance_sparrow", "ks": ks, "sigma": sigma}, "ward")
+    return out["alpha"], np.asarray(out["rho_s"])
 
 
 def torrance_sparrow_from_ward(alpha_w: float, rho_s: np.ndarray) -> tuple[float, np.ndarray]:
     """Torrance–Sparrow ``(sigma, ks)`` with a Ward lobe's width and peak: the inverse of
     :func:`ward_from_torrance_sparrow`."""
-    return ts_sigma_from_ward(alpha_w), rho_s / (4.0 * math.pi * alpha_w**2)
+    out = convert_bsdf({"model": "ward", "rho_s": rho_s, "alpha": alpha_w}, "torrance_sparrow")
+    return out["sigma"], np.asarray(out["ks"])
 
 
-def _ts(g: Geometry, bsdf: Mapping[str, Any]) -> np.ndarray:
-    return torrance_sparrow(g.cos_i, g.cos_r, g.alpha, ks=bsdf["ks"], sigma=float(bsdf["sigma"]))
+def specular_brdf(g: Geometry, bsdf: Mapping[str, Any]) -> np.ndarray:
+    """The specular BRDF of a BSDF dict at ``g``, 1/sr, shape ``(..., 3)``.
 
-
-def _ward(g: Geometry, bsdf: Mapping[str, Any]) -> np.ndarray:
-    return ward(g.cos_i, g.cos_r, g.alpha, rho_s=bsdf["rho_s"], alpha_w=float(bsdf["alpha"]))
-
-
-#: Specular BRDFs by the ``model`` name used in scene files and ``truth.bsdf``.
-SPECULAR_MODELS: dict[str, Callable[[Geometry, Mapping[str, Any]], np.ndarray]] = {
-    "torrance_sparrow": _ts,
-    "ward": _ward,
-}
+    Raises
+    ------
+    ValueError
+        A ``model`` with no closed form here (not in :data:`LOBES`).
+    """
+    lobe = _lobe(bsdf.get("model"))
+    shape = lobe.shape(g.cos_i, g.cos_r, g.alpha, float(bsdf[lobe.roughness_key]))
+    return shape[..., None] * np.broadcast_to(np.asarray(bsdf[lobe.colour_key], dtype=float), (3,))
 
 
 def specular_radiance(
@@ -208,17 +395,14 @@ def specular_radiance(
         Radiant intensity of the lamp reaching the surface, W/sr per channel
         (half the lamp's own intensity behind an ideal polarizer).
     bsdf : mapping
-        A BSDF dict with a ``model`` key in :data:`SPECULAR_MODELS`.
+        A BSDF dict with a ``model`` key in :data:`LOBES`.
 
     Returns
     -------
     ndarray, shape (..., 3)
     """
     g = shading_geometry(P, N, camera_position, lamp_position)
-    try:
-        f = SPECULAR_MODELS[bsdf["model"]](g, bsdf)
-    except KeyError:
-        raise ValueError(f"no closed form for specular model {bsdf.get('model')!r}") from None
+    f = specular_brdf(g, bsdf)
     return _irradiance(g, intensity) * np.where(_lit(g), f, 0.0)
 
 

@@ -39,9 +39,22 @@ def rel_stats(got: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
     return float(np.median(rel)), float(np.percentile(rel, 99))
 
 
-@pytest.fixture(scope="module", params=["ts_board.yaml", "ward_board.yaml"])
+#: The shipped boards, and the TS board with each microfacet lobe (same width and peak,
+#: physics.reflectance.convert_bsdf): the Dr.Jit lobes of generator/bsdfs.py against physics'.
+BOARDS = {
+    "ts": ("ts_board.yaml", {}),
+    "ward": ("ward_board.yaml", {}),
+    "ggx": ("ts_board.yaml", {"material": reflectance.convert_bsdf(
+        {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.08, "kd": [0.5, 0.5, 0.5]}, "ggx")}),
+    "beckmann": ("ts_board.yaml", {"material": reflectance.convert_bsdf(
+        {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.08, "kd": [0.5, 0.5, 0.5]}, "beckmann")}),
+}
+
+
+@pytest.fixture(scope="module", params=sorted(BOARDS))
 def board(request):
-    scene = load_scene(SCENES / request.param, overrides=SMALL)
+    name, extra = BOARDS[request.param]
+    scene = load_scene(SCENES / name, overrides={**SMALL, **extra})
     return scene, render_clean(scene, progress=False)
 
 
