@@ -106,10 +106,12 @@ def method_label(method: str, options: Mapping[str, Any]) -> str:
 def check_method(method: str, options: Mapping[str, Any]) -> None:
     """Raise :class:`UserError` for an unknown method or options it does not declare (before any work)."""
     from ..estimator import METHODS, load_method
+    from ..estimator.api import EXTRA_METHODS
     from ..estimator.options import check_options
 
-    if ":" not in method and method not in METHODS:
-        raise UserError(f"--method {method!r}: unknown method (expected one of {', '.join(METHODS)} or module:function)")
+    if ":" not in method and method not in METHODS and method not in EXTRA_METHODS:
+        raise UserError(f"--method {method!r}: unknown method "
+                        f"(expected one of {', '.join([*METHODS, *EXTRA_METHODS])} or module:function)")  # fmt: skip
     check_options(load_method(method), dict(options), method=method)
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
+from typing import Any
 
 from ..errors import UserError, require_extra
 from ..generator.cli import add_cache_options, add_quiet_option, cache_dir
@@ -56,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     s.set_defaults(run=_score)
 
 
-def _on_cluster(args: argparse.Namespace, fn, *a, **kw):
+def _on_cluster(args: argparse.Namespace, fn: Callable[..., Any], *a: Any, **kw: Any) -> Any:
     """``fn`` on the chosen executor; a scheduler that cannot be reached is a one-line error."""
     if not args.scheduler:
         return fn(*a, workers=args.workers, **kw)
