@@ -74,8 +74,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_quiet_option(p)
     p.set_defaults(run=_gsa)
 
+    from . import suite_cli
 
-def _check_executor(args: argparse.Namespace) -> None:
+    suite_cli.register(subparsers)  # suite build, suite verify, score
+
+
+def check_executor(args: argparse.Namespace) -> None:
     """``--workers`` positive; ``--scheduler`` a ``tcp://HOST:PORT`` with the cluster extra installed."""
     if args.workers < 1:
         raise UserError(f"--workers: expected a positive integer, got {args.workers}")
@@ -88,7 +92,7 @@ def _sweep(args: argparse.Namespace) -> int:
     from .engine import check_resumable, run_sweep
     from .sweep import load_sweep
 
-    _check_executor(args)
+    check_executor(args)
     from ..files.outputs import check_folder
 
     check_folder(args.out, what="results folder")
@@ -163,7 +167,7 @@ def _gsa(args: argparse.Namespace) -> int:
     from .gsa import load_study
     from .gsa_report import write_gsa_report
 
-    _check_executor(args)
+    check_executor(args)
     settings = dict(parse_setting(item, example="designs.screening.n=2") for item in args.set)
     check_folder(args.out, what="results folder")
     study = load_study(args.gsa, settings=settings, design=args.design)

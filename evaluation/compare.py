@@ -277,6 +277,30 @@ def compare_frames(
     return checks
 
 
+def _is_score(df: pd.DataFrame) -> bool:
+    """Whether ``df`` holds the rows of a ``nearlight score`` run (its ``renderer`` column is ``suite``)."""
+    return "renderer" in df and not df.empty and bool((df["renderer"] == "suite").all())
+
+
+def _as_scores(
+    new: pd.DataFrame, base: pd.DataFrame, axes: Sequence[str] | None
+) -> tuple[pd.DataFrame, pd.DataFrame, list[str], str]:
+    """Two score runs as :func:`compare_frames` compares them, and the note that says how.
+
+    A suite's inputs are frozen (the camera noise is in the stored capture), so every case is a unit
+    compared value against value (``noisy`` False; the unit is the case's categories and seed). Two runs
+    of one method each, different methods, are compared method against method on the same cases.
+    """
+    axes = [*(axes or []), "seed"]
+    new, base = new.assign(noisy=False), base.assign(noisy=False)
+    mn, mb = sorted(set(new["method"])), sorted(set(base["method"]))
+    note = "note: scorecards: every case of the frozen suite compared value against value"
+    if len(mn) == 1 and len(mb) == 1 and mn != mb:
+        new = new.assign(method=mb[0])
+        note += f"; method {mn[0]!r} (new) against {mb[0]!r} (baseline)"
+    return new, base, axes, note
+
+
 def compare_dirs(
     new_dir: str | os.PathLike, base_dir: str | os.PathLike, *, json_out: str | os.PathLike | None = None,
     **options: Any,
@@ -286,7 +310,7 @@ def compare_dirs(
     Parameters
     ----------
     new_dir, base_dir : path-like
-        Results folders of ``nearlight sweep``.
+        Results folders of ``nearlight sweep`` (or of ``nearlight score``: :func:`_as_scores`).
     json_out : path-like, optional
         Also write every check, the summary and the environment differences as JSON.
     **options
@@ -303,9 +327,12 @@ def compare_dirs(
     base, _ = read_results(base_dir)
     mn, mb = read_manifest(new_dir), read_manifest(base_dir)
     axes = mb.get("axes")
+    lines = []
+    if _is_score(new) and _is_score(base):
+        new, base, axes, note = _as_scores(new, base, axes)
+        lines.append(note)
     checks = compare_frames(new, base, axes=axes, **options)
 
-    lines = []
     if not new_complete:
         lines.append(f"note: {new_dir} is an incomplete sweep ({len(new)} rows)")
     if mn.get("sweep_hash") != mb.get("sweep_hash"):

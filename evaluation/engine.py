@@ -248,7 +248,10 @@ def _record_provenance(sweep: Sweep, out: str | Path, command: str | None) -> No
            entry_modules=[__name__], inputs=sweep_inputs(sweep))
 
 
-def _executor(workers: int, scheduler: Any) -> Any:
+def make_executor(workers: int, scheduler: Any) -> Any:
+    """Where the engine's calls run: this process (``workers`` = 1), local worker processes, or a Dask
+    cluster at ``scheduler``; ``submit``, ``as_completed``, ``abort`` (interrupted) and ``close``.
+    Shared with the suite builder and ``nearlight score`` (:mod:`nearlight.evaluation.suite`)."""
     if scheduler is not None:
         return _Dask(scheduler)
     return _Inline() if workers <= 1 else _Local(workers)
@@ -309,7 +312,7 @@ def run_sweep(
     cache = _cache_folder(out, cache_dir)
     cache_dir = str(cache) if cache is not None else None
     renderer = sweep.renderer
-    executor = _executor(workers, scheduler)
+    executor = make_executor(workers, scheduler)
     rendered = failed = 0
     render_errors: dict[str, str] = {}
     try:

@@ -1,0 +1,519 @@
+"""Benchmark suites: a frozen, versioned set of captures with a manifest of checksums.
+
+A *suite file* (``suites/core-v1.yaml``) is a sweep file ([sweep files](../docs/sweep-files.md))
+without ``methods`` plus three keys of its own: ``version`` (an integer), ``categories``
+(the axes a scorecard reports per value; default every axis) and ``cases_hash`` (the
+pin: the hash of its list of cases, so a changed definition is refused until it gets a
+new name, never an edit). Its *cases* are the sweep's tasks without the method: one
+per configuration and seed.
+
+``nearlight suite build`` renders each case once and writes the built suite, a folder
+any plain install reads (no renderer on the score path)::
+
+    DIR/manifest.json                  suite, version, versions, tolerance, per case:
+                                       path, categories, sha256 of each file, digests
+    DIR/cases/NNN/input/capture.*      what the method sees: the observed capture
+                                       (noise, nuisances), without truth
+    DIR/cases/NNN/truth/capture.*      the noise-free render with its truth, to score
+
+``nearlight suite verify`` checks every file's sha256 against the manifest and, with
+``--against``, compares two builds: files that differ must agree within the
+manifest's tolerance on their *digests* (block means of every image layer,
+:func:`image_digest`). The protocol and the tolerance: docs/benchmark-suites.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import sys
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import UserError
+
+#: The manifest's ``format``.
+FORMAT = "nearlight-suite/1"
+MANIFEST = "manifest.json"
+CASES = "cases"
+#: Sub-folders of a case: the capture a method sees, and the noise-free capture with the truth.
+INPUT, TRUTH = "input", "truth"
+#: Keys of a suite file that are not sweep-file keys.
+SUITE_KEYS = ("version", "categories", "cases_hash")
+#: Image digests: block means over a DIGEST_GRID x DIGEST_GRID grid of each layer (rows x columns).
+DIGEST_GRID = 4
+#: Two builds agree on a layer when every block mean differs by at most DIGEST_RTOL times the layer's
+#: largest |block mean| (docs/benchmark-suites.md, "Tolerance": float32 last-bit differences between
+#: CPUs average out over a block; a silhouette pixel that flips moves a 40x30-pixel block of a 160x120
+#: image by at most 1/1200 of its value, about this much for a layer near its peak).
+DIGEST_RTOL = 1e-3
+
+
+@dataclasses.dataclass(frozen=True)
+class Case:
+    """One capture of a suite: a configuration and seed of its sweep.
+
+    Attributes
+    ----------
+    index : int
+    case_id : str
+        Hash of the renderer, scene, noise, range noise and seed (stable across machines).
+    categories : dict
+        Axis name -> table value (the sweep's ``config``).
+    task : Task
+        The sweep task it came from (its method is not used).
+    """
+
+    index: int
+    case_id: str
+    categories: dict[str, Any]
+    task: Any
+
+    @property
+    def path(self) -> str:
+        """Folder of the case inside a built suite, relative to it."""
+        return f"{CASES}/{self.index:03d}"
+
+
+@dataclasses.dataclass(frozen=True)
+class Suite:
+    """A validated suite file: name, version, categories, its sweep, its cases and their hash."""
+
+    name: str
+    version: int
+    description: str
+    source: str
+    categories: list[str]
+    sweep: Any
+    cases: list[Case]
+    pinned: str | None
+
+    @property
+    def cases_hash(self) -> str:
+        """Hash of the case ids, in order: the suite's identity."""
+        return stable_hash([c.case_id for c in self.cases])
+
+
+def stable_hash(obj: Any) -> str:
+    """A 16-hex-digit sha256 of ``obj`` as sorted JSON: the same on every machine."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def load_suite(path: str | Path, *, check_pin: bool = True) -> Suite:
+    """Read a suite file.
+
+    Parameters
+    ----------
+    path : path-like
+        ``suites/NAME.yaml``: sweep keys (no ``methods``) plus ``version``, ``categories``,
+        ``cases_hash``.
+    check_pin : bool, optional
+        Refuse a file whose cases do not hash to its ``cases_hash`` (a changed definition).
+
+    Raises
+    ------
+    UserError
+        One line naming the file and key.
+    """
+    from ..files.yamlfile import load_yaml_file
+    from .sweep import load_sweep
+
+    p = Path(path)
+    if not p.is_file():
+        raise UserError(f"{p}: no such suite file")
+    doc = load_yaml_file(p, what="suite file")
+    if not isinstance(doc, dict):
+        raise UserError(f"{p}: expected a mapping of suite keys (name, version, scene, axes, seeds)")
+    if "methods" in doc:
+        raise UserError(f"{p}: methods: a suite has no methods (`nearlight score` names the method)")
+    version, categories, pinned = (doc.pop(k, None) for k in SUITE_KEYS)
+    if not isinstance(version, int) or isinstance(version, bool) or version < 1:
+        raise UserError(f"{p}: version: expected a positive integer, got {version!r}")
+    if isinstance(doc.get("scene"), str):  # a scene file is relative to the suite file
+        doc["scene"] = str(p.parent / doc["scene"])
+    sweep = load_sweep({**doc, "methods": ["full"], "crlb": False}, check_methods=False)
+    sweep = dataclasses.replace(sweep, source=str(p))
+    axes = list(sweep.axes)
+    if categories is None:
+        categories = axes
+    if not isinstance(categories, list) or any(c not in axes for c in categories):
+        raise UserError(f"{p}: categories: expected a list of the suite's axes ({', '.join(axes)}), got {categories!r}")
+    cases = []
+    for t in sweep.tasks:
+        cid = stable_hash([sweep.renderer.name, t.scene, t.noise, t.range_noise, t.seed])
+        cases.append(Case(len(cases), cid, dict(t.config), t))
+    suite = Suite(sweep.name, version, str(doc.get("description", "")).strip(), str(p), categories, sweep, cases,
+                  None if pinned is None else str(pinned))  # fmt: skip
+    if check_pin and suite.pinned != suite.cases_hash:
+        raise UserError(
+            f"{p}: cases_hash: the cases hash to {suite.cases_hash}, the file pins {suite.pinned}; a built suite is "
+            f"frozen: give a changed definition a new name and version (then pin cases_hash: {suite.cases_hash})"
+        )
+    return suite
+
+
+# --------------------------------------------------------------------------- files and digests
+
+
+def sha256_file(path: str | Path) -> str:
+    """Hex sha256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _block_means(a: np.ndarray, grid: int) -> list[float | None]:
+    """Block means of ``a`` (shape ``(H, W)`` or ``(H, W, C)``) over a ``grid`` x ``grid`` tiling,
+    NaN pixels ignored; a block without a finite pixel is None. Returns a flat list, row-major, channel last."""
+    a = np.asarray(a, dtype=float)
+    a = a[..., None] if a.ndim == 2 else a
+    rows = np.array_split(np.arange(a.shape[0]), grid)
+    cols = np.array_split(np.arange(a.shape[1]), grid)
+    out: list[float | None] = []
+    for r in rows:
+        for c in cols:
+            block = a[np.ix_(r, c)].reshape(-1, a.shape[2])
+            finite = np.isfinite(block)
+            n = finite.sum(axis=0)
+            s = np.where(finite, block, 0.0).sum(axis=0)
+            out += [float(v / k) if k else None for v, k in zip(s, n)]
+    return out
+
+
+def image_digest(capture: Any, *, grid: int = DIGEST_GRID) -> dict[str, list[float | None]]:
+    """Tolerant digest of a capture's images: block means of each layer.
+
+    Parameters
+    ----------
+    capture : Capture
+    grid : int
+        Blocks per side.
+
+    Returns
+    -------
+    dict of str to list
+        ``stack/<k>`` (each analyzer image, ``(H, W, 3)``), ``P`` (m), ``N``, ``specular``,
+        ``diffuse`` and every ``extra`` layer, when present: ``grid**2 * C`` block means each
+        (None where a block has no finite pixel, e.g. background in ``P``).
+    """
+    layers: dict[str, Any] = {"P": capture.P, "N": capture.N, "specular": capture.specular, "diffuse": capture.diffuse}
+    if capture.stack is not None:
+        layers.update({f"stack/{k}": img for k, img in enumerate(capture.stack)})
+    layers.update({f"extra/{k}": v for k, v in sorted(capture.extra.items())})
+    return {k: _block_means(v, grid) for k, v in layers.items() if v is not None}
+
+
+def digest_deviation(a: Mapping[str, list], b: Mapping[str, list]) -> tuple[float, str]:
+    """Largest deviation between two digests, relative to each layer's largest |block mean| in ``a``.
+
+    Returns
+    -------
+    deviation : float
+        Max over layers and blocks of ``|a - b| / max|a|``; inf when the layers differ, or a block is
+        empty in one and not the other.
+    layer : str
+        Where it is largest.
+    """
+    if set(a) != set(b):
+        return math.inf, ", ".join(sorted(set(a) ^ set(b)))
+    worst, where = 0.0, ""
+    for name in a:
+        x, y = a[name], b[name]
+        if len(x) != len(y) or any((u is None) != (v is None) for u, v in zip(x, y)):
+            return math.inf, name
+        xs = np.array([u for u in x if u is not None], dtype=float)
+        ys = np.array([v for v in y if v is not None], dtype=float)
+        if xs.size == 0:
+            continue
+        scale = float(np.max(np.abs(xs)))
+        dev = float(np.max(np.abs(xs - ys))) / scale if scale > 0 else float(np.max(np.abs(ys)) > 0) * math.inf
+        if dev > worst:
+            worst, where = dev, name
+    return worst, where
+
+
+# --------------------------------------------------------------------------- building
+
+
+#: Keys of ``capture.json`` (a capture's ``meta``) that hold the truth in another form: the generator's
+#: record of the scene it rendered (lamp position, material), written beside every render.
+TRUTH_META = ("generator",)
+
+
+def strip_truth(capture: Any) -> Any:
+    """``capture`` as a method may see it: no ``truth``, no ``truth_*`` layer, no :data:`TRUTH_META` key."""
+    extra = {k: v for k, v in capture.extra.items() if not k.startswith("truth")}
+    meta = {k: v for k, v in capture.meta.items() if k not in TRUTH_META}
+    return capture.replace(truth=None, extra=extra, meta=meta)
+
+
+def build_case(payload: Mapping[str, Any], *, renderer: Any, cache_dir: str | None, folder: str) -> dict[str, Any]:
+    """Render one case (or re-use its render) and write its two captures into ``folder``.
+
+    Parameters
+    ----------
+    payload : mapping
+        :func:`nearlight.evaluation.engine.task_payload` of the case's task.
+    renderer : Renderer
+    cache_dir : str or None
+        Render cache.
+    folder : str
+        The case's folder (created; its ``input`` and ``truth`` captures must not exist).
+
+    Returns
+    -------
+    dict
+        ``files`` (path relative to ``folder`` -> sha256) and ``digests`` (``input`` / ``truth`` ->
+        :func:`image_digest`).
+    """
+    from ..capture import write_capture
+    from .tasks import noisy_capture
+
+    clean = renderer.render(payload["scene"], cache_dir=None if cache_dir is None else Path(cache_dir))
+    observed = strip_truth(noisy_capture(clean, payload))
+    root = Path(folder)
+    write_capture(observed, root / INPUT)
+    write_capture(clean, root / TRUTH)
+    return case_record(root)
+
+
+def case_record(root: Path) -> dict[str, Any]:
+    """``files`` (sha256 of each file under ``root``, relative paths) and ``digests`` of a case folder."""
+    from ..capture import read_capture
+
+    files = {str(f.relative_to(root)): sha256_file(f) for f in sorted(root.rglob("*")) if f.is_file()}
+    digests = {sub: image_digest(read_capture(root / sub)) for sub in (INPUT, TRUTH)}
+    return {"files": files, "digests": digests}
+
+
+def _case_done(root: Path) -> bool:
+    from ..files.outputs import is_capture_dir
+
+    return is_capture_dir(root / INPUT) and is_capture_dir(root / TRUTH)
+
+
+def check_build_out(out: str | Path, suite: Suite) -> Path:
+    """Raise :class:`UserError` unless ``out`` is creatable, an empty folder, or a build of this suite
+    (resumed). Nothing is written."""
+    from ..files.outputs import check_folder
+
+    out = check_folder(out, what="suite folder")
+    if out.is_dir() and any(out.iterdir()):
+        manifest = out / MANIFEST
+        if not manifest.is_file():
+            raise UserError(f"{out}: not empty and not a built suite (no {MANIFEST}); choose another --out")
+        try:
+            old = json.loads(manifest.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+            old = None
+        if not isinstance(old, dict) or old.get("format") != FORMAT:
+            raise UserError(f"{manifest}: not a manifest written by nearlight suite build; choose another --out")
+        if old.get("cases_hash") != suite.cases_hash:
+            raise UserError(
+                f"{out}: holds suite {old.get('suite')!r} v{old.get('version')} (cases {old.get('cases_hash')}), "
+                f"not {suite.name!r} v{suite.version} ({suite.cases_hash}); choose another --out"
+            )
+    return out
+
+
+def build_suite(
+    suite: Suite, out: str | Path, *, workers: int = 1, scheduler: Any = None, progress: bool = True,
+    cache_dir: str | Path | None = None,
+) -> tuple[Path, dict[str, int]]:  # fmt: skip
+    """Build (or resume building) ``suite`` into ``out``: every case's captures, then ``manifest.json``.
+
+    Parameters
+    ----------
+    suite : Suite
+    out : path-like
+        Suite folder (checked with :func:`check_build_out`); cases already written are kept.
+    workers, scheduler : optional
+        As :func:`nearlight.evaluation.engine.run_sweep`.
+    progress : bool
+        tqdm progress bars on stderr.
+    cache_dir : path-like or None
+        Render cache (configurations shared by several cases render once); None: none.
+
+    Returns
+    -------
+    manifest : Path
+    counts : dict
+        ``built``, ``kept`` (already there), ``rendered`` (renders made).
+    """
+    from tqdm import tqdm
+
+    from ..files.atomic import write_json
+    from ..files.jsonable import jsonable
+    from .engine import make_executor, task_payload
+
+    out = check_build_out(out, suite)
+    out.mkdir(parents=True, exist_ok=True)
+    if not (out / MANIFEST).is_file():  # marks the folder as this suite's (incomplete) build: resumable
+        write_json(out / MANIFEST, jsonable(manifest_doc(suite, {})))
+    renderer = suite.sweep.renderer
+    cache = None if cache_dir is None else str(cache_dir)
+    todo = [c for c in suite.cases if not _case_done(out / c.path)]
+    executor = make_executor(workers, scheduler)
+    rendered = 0
+    records: dict[str, dict] = {}
+    try:
+        keys = list(dict.fromkeys(c.task.render_key for c in todo)) if renderer.prerender and cache else []
+        if keys:
+            scenes = {c.task.render_key: c.task.scene for c in todo}
+            futs = [executor.submit(renderer.prepare, scenes[k], cache_dir=Path(cache)) for k in keys]
+            bar = tqdm(total=len(keys), desc=f"{suite.name}: renders", unit="render", disable=not progress, file=sys.stderr)
+            for fut in executor.as_completed(futs):
+                rendered += bool(fut.result())
+                bar.update()
+            bar.close()
+        for c in todo:  # a case interrupted half-written is written again (nearlight wrote it)
+            _remove_partial_case(out / c.path)
+        futs = {executor.submit(build_case, task_payload(c.task, suite.sweep), renderer=renderer, cache_dir=cache,
+                                folder=str(out / c.path)): c for c in todo}  # fmt: skip
+        bar = tqdm(total=len(suite.cases), initial=len(suite.cases) - len(todo), desc=f"{suite.name}: cases",
+                   unit="case", disable=not progress, file=sys.stderr)  # fmt: skip
+        for fut in executor.as_completed(list(futs)):
+            records[futs[fut].case_id] = fut.result()
+            bar.update()
+        bar.close()
+    except BaseException:
+        executor.abort()
+        raise
+    finally:
+        executor.close()
+    for c in suite.cases:
+        if c.case_id not in records:
+            records[c.case_id] = case_record(out / c.path)
+    path = write_json(out / MANIFEST, jsonable(manifest_doc(suite, records)))
+    return path, {"built": len(todo), "kept": len(suite.cases) - len(todo), "rendered": rendered}
+
+
+def _remove_partial_case(root: Path) -> None:
+    """Remove what an interrupted build left of one case: only capture folders (nearlight's)."""
+    import shutil
+
+    from ..files.outputs import is_capture_dir
+
+    for sub in (INPUT, TRUTH):
+        if is_capture_dir(root / sub):
+            shutil.rmtree(root / sub)
+
+
+def manifest_doc(suite: Suite, records: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    """The manifest of a built suite (docs/benchmark-suites.md names every field); ``complete`` is
+    false, and the cases carry no ``files`` and ``digests``, until every case has its record."""
+    from .. import __version__
+    from .environment import code_version, collect
+
+    return {
+        "format": FORMAT,
+        "suite": suite.name,
+        "version": suite.version,
+        "description": suite.description,
+        "definition": Path(suite.source).name,
+        "cases_hash": suite.cases_hash,
+        "renderer": suite.sweep.renderer.name,
+        "nearlight_version": __version__,
+        "generator_version": code_version(),
+        "environment": collect(),
+        "tolerance": {"digest_grid": DIGEST_GRID, "digest_rtol": DIGEST_RTOL},
+        "categories": suite.categories,
+        "complete": all(c.case_id in records for c in suite.cases),
+        "cases": [
+            {
+                "id": c.case_id,
+                "path": c.path,
+                "categories": c.categories,
+                "seed": c.task.seed,
+                "noisy": c.task.noisy,
+                **records.get(c.case_id, {}),
+            }
+            for c in suite.cases
+        ],
+    }
+
+
+# --------------------------------------------------------------------------- reading and verifying
+
+
+def read_manifest(folder: str | Path) -> dict[str, Any]:
+    """The manifest of a built suite folder; :class:`UserError` naming it when missing or damaged."""
+    folder = Path(folder)
+    path = folder / MANIFEST
+    if not folder.is_dir():
+        raise UserError(f"{folder}: not a built suite folder (build one: nearlight suite build SUITE.yaml --out DIR)")
+    if not path.is_file():
+        raise UserError(f"{path}: missing (not a built suite: nearlight suite build SUITE.yaml --out DIR)")
+    return read_manifest_file(path)
+
+
+def read_manifest_file(path: str | Path) -> dict[str, Any]:
+    """A suite manifest file, checked for its format and keys."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UserError(f"{path}: not a readable suite manifest ({' '.join(str(exc).split())})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise UserError(f"{path}: format: expected {FORMAT!r} (a manifest written by nearlight suite build)")
+    for key in ("suite", "version", "cases_hash", "categories", "cases", "tolerance", "complete"):
+        if key not in doc:
+            raise UserError(f"{path}: {key}: missing")
+    if doc["complete"] is not True:
+        raise UserError(f"{path}: an interrupted build (complete: false); finish it: nearlight suite build "
+                        f"SUITE.yaml --out {path.parent}")  # fmt: skip
+    return doc
+
+
+def checksum_problems(folder: str | Path, manifest: Mapping[str, Any]) -> list[str]:
+    """One line per file of the manifest that is missing or whose sha256 differs (empty: all good)."""
+    folder = Path(folder)
+    problems = []
+    for case in manifest["cases"]:
+        for rel, sha in case["files"].items():
+            f = folder / case["path"] / rel
+            if not f.is_file():
+                problems.append(f"{f}: missing")
+            elif sha256_file(f) != sha:
+                problems.append(f"{f}: checksum mismatch (sha256 differs from {folder / MANIFEST})")
+    return problems
+
+
+def verify_against(manifest: Mapping[str, Any], other: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """Compare two builds' manifests case by case.
+
+    Returns
+    -------
+    list of (verdict, line)
+        ``identical`` (every sha256 equal), ``within`` (files differ, digests within ``other``'s
+        tolerance), ``differs`` (beyond it, or a case or file only on one side).
+    """
+    rtol = float(other["tolerance"]["digest_rtol"])
+    mine = {c["id"]: c for c in manifest["cases"]}
+    out = []
+    for ref in other["cases"]:
+        c = mine.get(ref["id"])
+        if c is None:
+            out.append(("differs", f"{ref['path']}: case {ref['id']} missing"))
+            continue
+        if c["files"] == ref["files"]:
+            out.append(("identical", f"{c['path']}: identical"))
+            continue
+        worst, where = 0.0, ""
+        for sub in (INPUT, TRUTH):
+            dev, layer = digest_deviation(ref["digests"][sub], c["digests"][sub])
+            if dev >= worst:
+                worst, where = dev, f"{sub}/{layer}"
+        verdict = "within" if worst <= rtol else "differs"
+        out.append((verdict, f"{c['path']}: files differ, digests {'within' if verdict == 'within' else 'BEYOND'} "
+                             f"tolerance (largest deviation {worst:.2e} of the layer's peak at {where}, tolerance {rtol:g})"))
+    for cid in set(mine) - {r["id"] for r in other["cases"]}:
+        out.append(("differs", f"{mine[cid]['path']}: case {cid} not in the reference"))
+    return out
