@@ -75,7 +75,7 @@ def fit(cap, **options):
 def mismatch(args) -> None:
     fits = [*FAMILIES, "auto", "auto, true left out"]
     print(f"\n1. mismatch: median lamp error (% of distance), {args.seeds} seeds, noise {args.noise}, σ = {args.sigma}")
-    print(f"{'object':7} {'rendered':17}" + "".join(f"{f:>18}" for f in fits) + f"{'auto ≤ 1.2× best':>18}")
+    print(f"{'object':7} {'rendered':17}" + "".join(f"{f:>21}" for f in fits) + f"{'auto ≤ 1.2× best':>18}")
     for obj in OBJECTS:
         for family in FAMILIES:
             clean = capture(obj, family, args.sigma, *args.resolution)
@@ -92,7 +92,7 @@ def mismatch(args) -> None:
             med = {f: 100 * float(np.nanmedian(v)) for f, v in errs.items()}
             best = min(med[f] for f in FAMILIES)
             ok = "yes" if med["auto"] <= 1.2 * best else "NO"
-            print(f"{obj:7} {family:17}" + "".join(f"{med[f]:18.3f}" for f in fits) + f"{ok:>18}")
+            print(f"{obj:7} {family:17}" + "".join(f"{med[f]:21.3f}" for f in fits) + f"{ok:>18}")
 
 
 def confusion(args) -> None:

@@ -51,6 +51,11 @@ def _lobe_choice(value: str) -> str:
     return value
 
 
+#: Families whose evidence against the subset's best is below this are fitted on every pixel before
+#: the choice (a difference of −2 log-likelihood: 50 is decisive on the subset, and a close call
+#: on ~2000 pixels is settled by ten times as many).
+REFIT_EVIDENCE = 50.0
+
 #: ``full``'s ``lobe`` option.
 LobeChoice = Annotated[str, AfterValidator(_lobe_choice)]
 #: Pixel-weight models of ``full``'s ``noise`` option.
@@ -200,13 +205,15 @@ def full_estimate(
 
     The lobe family (``lobe``): one named, or ``auto``: every family of
     :data:`~nearlight.estimator.lobes.FAMILIES` is fitted from the same
-    start on the short fits' pixel subset (at most ~2000), and the one with
-    the smallest weighted sum of squares there wins (all have seven
-    parameters, so this is the Akaike and the Bayesian information criterion
-    alike) and is then fitted on every pixel; ``stages["full"]["lobe_evidence"]``
-    holds each family's ``Δχ² / s²`` to the winner on that subset, ``s²`` the
-    winner's residual variance (a difference of −2 log-likelihood: above
-    ~10, the data decide).
+    start on the short fits' pixel subset (at most ~2000); every family
+    within :data:`REFIT_EVIDENCE` of the best there is fitted on every pixel,
+    and the one with the smallest weighted sum of squares wins (all have
+    seven parameters, so this is the Akaike and the Bayesian information
+    criterion alike). ``stages["full"]["lobe_evidence"]`` holds each family's
+    ``Δχ² / s²`` to the subset's best, ``s²`` that fit's residual variance (a
+    difference of −2 log-likelihood: above ~10, the data decide), and
+    ``lobe_evidence_all_pixels`` the same on every pixel for the families
+    fitted there.
 
     Pixel weights (``noise``): ``none`` (the default) weighs all pixels alike;
     ``auto`` weighs each by ``1/std`` of its specular under the capture's
@@ -296,14 +303,20 @@ def full_estimate(
         x0[3:6] = c.linear_ks(x0)
         x0 = short_fit(c, x0)["x"]
         shorts[family] = (x0, _chi2(c, x0))
-    chosen = min(shorts, key=lambda k: shorts[k][1])
-    s2 = shorts[chosen][1] / max(3 * len(coarse.P) - 7, 1)
-    evidence = {k: (v[1] - shorts[chosen][1]) / s2 for k, v in shorts.items()}
-    m = model.with_lobe(chosen)
-    x0 = shorts[chosen][0]
-    fit = robust_fit(m.residuals, x0, typical=typical(x0), lower=lower, upper=upper, loss=loss,
-                     f_scale=f_scale, jac=m.jacobian, f_floor=floor)
-    fit["chi2"] = _chi2(m, fit["x"])
+    first = min(shorts, key=lambda k: shorts[k][1])
+    s2 = shorts[first][1] / max(3 * len(coarse.P) - 7, 1)
+    evidence = {k: (v[1] - shorts[first][1]) / s2 for k, v in shorts.items()}
+    fits = {}
+    for family in (k for k, v in evidence.items() if v < REFIT_EVIDENCE):
+        m = model.with_lobe(family)
+        x0 = shorts[family][0]
+        fits[family] = robust_fit(m.residuals, x0, typical=typical(x0), lower=lower, upper=upper, loss=loss,
+                                  f_scale=f_scale, jac=m.jacobian, f_floor=floor)
+        fits[family]["chi2"] = _chi2(m, fits[family]["x"])
+    chosen = min(fits, key=lambda k: fits[k]["chi2"])
+    fit = fits[chosen]
+    s2_all = fit["chi2"] / max(3 * len(model.P) - 7, 1)
+    refit = {k: (v["chi2"] - fit["chi2"]) / s2_all for k, v in fits.items()}
     x, cov7 = fit["x"], fit["cov"]
     k = ts_sigma(chosen, 1.0)
     idx = [0, 1, 2, 6]
@@ -315,7 +328,7 @@ def full_estimate(
         "covariance_params_7": ["x", "y", "z", "colour_r", "colour_g", "colour_b", "roughness"],
         **{k: fit[k] for k in ("f_scale", "cost", "nfev", "status", "rms", "chi2")},
         "lobe": chosen, "bsdf": {"model": chosen, spec.colour_key: x[3:6], spec.roughness_key: x[6]},
-        "lobe_evidence": evidence, "lobes_fitted": list(families),
+        "lobe_evidence": evidence, "lobe_evidence_all_pixels": refit, "lobes_fitted": list(families),
         "noise": None if camera is None else camera._asdict(),
         "loss": loss, "n_pixels": int(use.sum()), "n_starts": len(trials),
     }
