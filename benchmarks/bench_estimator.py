@@ -7,7 +7,8 @@ paper's first stage with the plain per-step scan of the same E_p(t)
 (every Δt = 1 mm in (0, t_max]): seconds, E_p evaluations, speed-up (goal ≥
 20×) and whether both return the same t to within Δt. Printed, not asserted:
 the machine is shared. Also prints each method's lamp error (fraction of the
-highlight–lamp distance).
+highlight–lamp distance), and ``full``'s per-stage seconds with a named lobe
+and with automatic lobe choice.
 
 Usage::
 
@@ -60,6 +61,12 @@ def main() -> None:
             origin = cap.P[tuple(est.diagnostics["peak_pixel"])].astype(float)
             err = np.linalg.norm(est.lamp_position - lamp) / np.linalg.norm(lamp - origin)
             print(f"{name:8} {method:11} {secs:8.3f} {err:9.2e} {est.sigma:7.4f}")
+        # full's stages, and a named lobe against automatic choice (issue 14's speed goal: a named
+        # lobe ≤ 0.3 s per 640×480 capture on one core, automatic choice ≤ 2× that)
+        for lobe in ("torrance_sparrow", "auto"):
+            secs, est = best_of(lambda: estimate(cap, method="full", lobe=lobe), args.repeat)
+            stages = ", ".join(f"{k} {v:.3f}" for k, v in est.timings.items())
+            print(f"{name:8} full lobe={lobe:16} {secs:.3f} s ({stages}; chose {est.stages['full']['lobe']})")
         obs = observe(cap)
         t_max, dt = t_search_defaults(obs, None, None)
         ray = RaySearch(obs)
