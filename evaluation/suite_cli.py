@@ -73,10 +73,10 @@ def _build(args: argparse.Namespace) -> int:
 
     check_executor(args)
     suite = load_suite(args.suite)
-    if suite.sweep.renderer.extra is not None:
-        require_extra(suite.sweep.renderer.extra)
+    if suite.renderer.extra is not None:
+        require_extra(suite.renderer.extra)
     check_build_out(args.out, suite)
-    print(f"suite {suite.name} v{suite.version}: {len(suite.cases)} cases, {len(suite.sweep.render_keys)} physical "
+    print(f"suite {suite.name} v{suite.version}: {len(suite.cases)} cases, {len(suite.render_keys)} physical "
           f"configurations -> {args.out}", file=sys.stderr)  # fmt: skip
     import time
 
