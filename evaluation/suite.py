@@ -177,6 +177,11 @@ def load_suite(path: str | Path, *, check_pin: bool = True) -> Suite:
             seen[cid] = len(cases)
             cases.append(Case(len(cases), cid, {**({PART: part} if part else {}), **t.config}, t, sweep))
     columns = [*([PART] if None not in parts else []), *dict.fromkeys(a for s in parts.values() for a in s.axes)]
+    for col in columns:  # a column holds one kind of value (a results table stores it as one type)
+        kinds = {type(c.categories[col]).__name__ for c in cases if col in c.categories}
+        if len(kinds) > 1:
+            raise UserError(f"{p}: axes.{col}: its parts give it values of different kinds ({', '.join(sorted(kinds))}); "
+                            f"label them alike (e.g. all as strings)")  # fmt: skip
     if categories is None:
         categories = columns
     if not isinstance(categories, list) or any(c not in columns for c in categories):
@@ -245,6 +250,11 @@ def _part_sweeps(path: Path, doc: Mapping[str, Any]) -> dict[str | None, Any]:
                 raise UserError(f"{path}: parts.{name}.{key}: expected a mapping, got {own!r}")
             merged[key] = {**shared.get(key, {}), **own}
         out[name] = _part_sweep(path, merged, name)
+        first = next(iter(out.values()))
+        if set(out[name].axes) != set(first.axes):  # NaN categories would match nothing in tables and compare
+            raise UserError(f"{path}: parts.{name}.axes: {', '.join(out[name].axes) or 'none'}; the first part has "
+                            f"{', '.join(first.axes) or 'none'}: every part has the same axes (with its own values), "
+                            f"so that every case has a value in every category")  # fmt: skip
     return out
 
 
