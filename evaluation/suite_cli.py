@@ -17,8 +17,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "suite",
         help="build a benchmark suite (frozen, versioned captures with checksums) or verify one",
-        description="A suite file (suites/*.yaml) is a sweep file without methods, plus version, categories and "
-        "the pinned hash of its cases. `suite build` renders every case once into a portable folder with "
+        description="A suite file (suites/*.yaml) is a sweep file without methods (or a list of such `parts`, one "
+        "per scene), plus version, categories and the pinned hash of its cases. `suite build` renders every case once into a portable folder with "
         "manifest.json; `suite verify` checks its checksums, or compares it with another build.",
     )
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
