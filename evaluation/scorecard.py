@@ -205,7 +205,7 @@ def score_suite(
     t_start = time.perf_counter()
     label = method_label(method, options)
     cats = list(manifest["categories"])
-    axes = list(dict.fromkeys(k for c in manifest["cases"] for k in c["categories"]))  # parts may have other axes
+    axes = list(manifest["cases"][0]["categories"]) if manifest["cases"] else []
     store = ResultStore(out, name=f"score {manifest['suite']} v{manifest['version']} {label}",
                         sweep_hash=_run_hash(manifest, method, options), n_tasks=len(manifest["cases"]), axes=axes)  # fmt: skip
     done = store.done_ids()

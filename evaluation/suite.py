@@ -100,7 +100,11 @@ class Case:
 
 @dataclasses.dataclass(frozen=True)
 class Suite:
-    """A validated suite file: name, version, categories, its parts' sweeps, its cases and their hash."""
+    """A validated suite file: name, version, categories, its parts' sweeps, its cases and their hash.
+
+    ``parts`` maps each part's name to its sweep, in file order; a suite file without ``parts`` has one,
+    named None.
+    """
 
     name: str
     version: int
