@@ -2,10 +2,16 @@
 
 A *suite file* (``suites/core-v1.yaml``) is a sweep file ([sweep files](../docs/sweep-files.md))
 without ``methods`` plus three keys of its own: ``version`` (an integer), ``categories``
-(the axes a scorecard reports per value; default every axis) and ``cases_hash`` (the
+(what a scorecard reports per value; default every axis) and ``cases_hash`` (the
 pin: the hash of its list of cases, so a changed definition is refused until it gets a
 new name, never an edit). Its *cases* are the sweep's tasks without the method: one
 per configuration and seed.
+
+A suite of several scenes with their own cameras (``suites/paper-v1.yaml``) lists them as
+``parts``: each part a named sweep (``name``, ``scene``, and its own ``set``, ``axes``,
+``seeds``), the suite's top-level ``set``, ``axes`` and ``seeds`` shared by every part. Its
+cases are the parts' cases in order, numbered across them; each case's categories name its
+part (``part``). A suite without ``parts`` is one unnamed part: one code path builds both.
 
 ``nearlight suite build`` renders each case once and writes the built suite, a folder
 any plain install reads (no renderer on the score path)::
@@ -45,6 +51,12 @@ CASES = "cases"
 INPUT, TRUTH = "input", "truth"
 #: Keys of a suite file that are not sweep-file keys.
 SUITE_KEYS = ("version", "categories", "cases_hash")
+#: Keys of a suite file with ``parts``, besides :data:`SUITE_KEYS` (``set``, ``axes``, ``seeds``: shared by
+#: every part), and the keys of one part.
+PARTS_SUITE_KEYS = ("name", "description", "renderer", "set", "axes", "seeds", "parts")
+PART_KEYS = ("name", "scene", "set", "axes", "seeds")
+#: The category that names a case's part (in a suite with ``parts``).
+PART = "part"
 #: Image digests: block means over a DIGEST_GRID x DIGEST_GRID grid of each layer (rows x columns).
 DIGEST_GRID = 4
 #: Two builds agree on a layer when every block mean differs by at most DIGEST_RTOL times the layer's
@@ -56,23 +68,29 @@ DIGEST_RTOL = 1e-3
 
 @dataclasses.dataclass(frozen=True)
 class Case:
-    """One capture of a suite: a configuration and seed of its sweep.
+    """One capture of a suite: a configuration and seed of one of its parts.
 
     Attributes
     ----------
     index : int
+        Position in the suite, numbered across its parts.
     case_id : str
-        Hash of the renderer, scene, noise, range noise and seed (stable across machines).
+        Hash of the renderer, scene, noise, range noise and seed, and of the part's name in a suite
+        with ``parts`` (stable across machines).
     categories : dict
-        Axis name -> table value (the sweep's ``config``).
+        ``part`` (its part's name, in a suite with ``parts``), then axis name -> table value (the
+        sweep's ``config``).
     task : Task
         The sweep task it came from (its method is not used).
+    sweep : Sweep
+        Its part's sweep.
     """
 
     index: int
     case_id: str
     categories: dict[str, Any]
     task: Any
+    sweep: Any
 
     @property
     def path(self) -> str:
@@ -82,14 +100,18 @@ class Case:
 
 @dataclasses.dataclass(frozen=True)
 class Suite:
-    """A validated suite file: name, version, categories, its sweep, its cases and their hash."""
+    """A validated suite file: name, version, categories, its parts' sweeps, its cases and their hash.
+
+    ``parts`` maps each part's name to its sweep, in file order; a suite file without ``parts`` has one,
+    named None.
+    """
 
     name: str
     version: int
     description: str
     source: str
     categories: list[str]
-    sweep: Any
+    parts: dict[str | None, Any]
     cases: list[Case]
     pinned: str | None
 
@@ -97,6 +119,16 @@ class Suite:
     def cases_hash(self) -> str:
         """Hash of the case ids, in order: the suite's identity."""
         return stable_hash([c.case_id for c in self.cases])
+
+    @property
+    def renderer(self) -> Any:
+        """The renderer of every part (a suite has one)."""
+        return next(iter(self.parts.values())).renderer
+
+    @property
+    def render_keys(self) -> list[str]:
+        """Distinct physical configurations over all parts, in case order."""
+        return list(dict.fromkeys(c.task.render_key for c in self.cases))
 
 
 def stable_hash(obj: Any) -> str:
@@ -111,7 +143,8 @@ def load_suite(path: str | Path, *, check_pin: bool = True) -> Suite:
     ----------
     path : path-like
         ``suites/NAME.yaml``: sweep keys (no ``methods``) plus ``version``, ``categories``,
-        ``cases_hash``.
+        ``cases_hash``; or, for several scenes, ``parts`` (a list of ``{name, scene, set, axes,
+        seeds}``) with the shared ``renderer``, ``set``, ``axes``, ``seeds`` at the top level.
     check_pin : bool, optional
         Refuse a file whose cases do not hash to its ``cases_hash`` (a changed definition).
 
@@ -121,7 +154,6 @@ def load_suite(path: str | Path, *, check_pin: bool = True) -> Suite:
         One line naming the file and key.
     """
     from ..files.yamlfile import load_yaml_file
-    from .sweep import load_sweep
 
     p = Path(path)
     if not p.is_file():
@@ -134,20 +166,31 @@ def load_suite(path: str | Path, *, check_pin: bool = True) -> Suite:
     version, categories, pinned = (doc.pop(k, None) for k in SUITE_KEYS)
     if not isinstance(version, int) or isinstance(version, bool) or version < 1:
         raise UserError(f"{p}: version: expected a positive integer, got {version!r}")
-    if isinstance(doc.get("scene"), str):  # a scene file is relative to the suite file
-        doc["scene"] = str(p.parent / doc["scene"])
-    sweep = load_sweep({**doc, "methods": ["full"], "crlb": False}, check_methods=False)
-    sweep = dataclasses.replace(sweep, source=str(p))
-    axes = list(sweep.axes)
+    name = doc.get("name")
+    if not isinstance(name, str) or not name.strip():
+        raise UserError(f"{p}: name: expected the suite's name (a non-empty string), got {name!r}")
+    parts = {None: _part_sweep(p, doc, None)} if "parts" not in doc else _part_sweeps(p, doc)
+    cases: list[Case] = []
+    seen: dict[str, int] = {}
+    for part, sweep in parts.items():
+        for t in sweep.tasks:
+            cid = stable_hash([sweep.renderer.name, t.scene, t.noise, t.range_noise, t.seed, *([part] if part else [])])
+            if cid in seen:
+                raise UserError(f"{p}: {'' if part is None else f'parts.{part}: '}case {len(cases)} ({t.config}) is the "
+                                f"same capture as case {seen[cid]}: give each case its own configuration")  # fmt: skip
+            seen[cid] = len(cases)
+            cases.append(Case(len(cases), cid, {**({PART: part} if part else {}), **t.config}, t, sweep))
+    columns = [*([PART] if None not in parts else []), *dict.fromkeys(a for s in parts.values() for a in s.axes)]
+    for col in columns:  # a column holds one kind of value (a results table stores it as one type)
+        kinds = {type(c.categories[col]).__name__ for c in cases if col in c.categories}
+        if len(kinds) > 1:
+            raise UserError(f"{p}: axes.{col}: its parts give it values of different kinds ({', '.join(sorted(kinds))}); "
+                            f"label them alike (e.g. all as strings)")  # fmt: skip
     if categories is None:
-        categories = axes
-    if not isinstance(categories, list) or any(c not in axes for c in categories):
-        raise UserError(f"{p}: categories: expected a list of the suite's axes ({', '.join(axes)}), got {categories!r}")
-    cases = []
-    for t in sweep.tasks:
-        cid = stable_hash([sweep.renderer.name, t.scene, t.noise, t.range_noise, t.seed])
-        cases.append(Case(len(cases), cid, dict(t.config), t))
-    suite = Suite(sweep.name, version, str(doc.get("description", "")).strip(), str(p), categories, sweep, cases,
+        categories = columns
+    if not isinstance(categories, list) or any(c not in columns for c in categories):
+        raise UserError(f"{p}: categories: expected a list of the suite's axes ({', '.join(columns)}), got {categories!r}")
+    suite = Suite(name, version, str(doc.get("description", "")).strip(), str(p), categories, parts, cases,
                   None if pinned is None else str(pinned))  # fmt: skip
     if check_pin and suite.pinned != suite.cases_hash:
         raise UserError(
@@ -155,6 +198,68 @@ def load_suite(path: str | Path, *, check_pin: bool = True) -> Suite:
             f"frozen: give a changed definition a new name and version (then pin cases_hash: {suite.cases_hash})"
         )
     return suite
+
+
+def _part_sweep(path: Path, doc: Mapping[str, Any], part: str | None) -> Any:
+    """The sweep of one part (``doc``: sweep keys without ``methods``), errors naming ``path`` and the part."""
+    from .sweep import load_sweep
+
+    doc = dict(doc)
+    if isinstance(doc.get("scene"), str):  # a scene file is relative to the suite file
+        doc["scene"] = str(path.parent / doc["scene"])
+    try:
+        sweep = load_sweep({**doc, "methods": ["full"], "crlb": False}, check_methods=False)
+    except UserError as exc:  # load_sweep names a mapping "<sweep>": name the file (and part) instead
+        msg = str(exc)
+        where = f"{path}: " + ("" if part is None else f"parts.{part}.")
+        raise UserError(where + msg.removeprefix("<sweep>: ") if msg.startswith("<sweep>: ") else msg) from None
+    return dataclasses.replace(sweep, source=str(path))
+
+
+def _part_sweeps(path: Path, doc: Mapping[str, Any]) -> dict[str | None, Any]:
+    """Part name -> sweep of a suite file with ``parts``: each part's keys over the shared ones (``set``
+    and ``axes`` merged, the part's value winning for a key both name; ``seeds`` the part's if given)."""
+    extra = sorted(set(doc) - set(PARTS_SUITE_KEYS))
+    if extra:
+        raise UserError(f"{path}: {extra[0]}: not a key of a suite with parts (expected {', '.join(PARTS_SUITE_KEYS)}; "
+                        f"each part has its own scene)")  # fmt: skip
+    parts = doc["parts"]
+    if not isinstance(parts, list) or not parts:
+        raise UserError(f"{path}: parts: expected a non-empty list of parts ({{name, scene, set, axes, seeds}})")
+    shared = {k: doc[k] for k in ("set", "axes") if k in doc}
+    for key, value in shared.items():
+        if not isinstance(value, dict):
+            raise UserError(f"{path}: {key}: expected a mapping, got {value!r}")
+    out: dict[str | None, Any] = {}
+    for i, part in enumerate(parts):
+        if not isinstance(part, dict) or not isinstance(part.get("name"), str) or not part["name"].strip():
+            raise UserError(f"{path}: parts[{i}]: expected a mapping with a name (a non-empty string)")
+        name = part["name"]
+        if name in out:
+            raise UserError(f"{path}: parts[{i}].name: {name!r} names two parts")
+        bad = sorted(set(part) - set(PART_KEYS))
+        if bad:
+            raise UserError(f"{path}: parts.{name}.{bad[0]}: unknown key (a part has {', '.join(PART_KEYS)}; the "
+                            f"renderer is the suite's)")  # fmt: skip
+        if "scene" not in part:
+            raise UserError(f"{path}: parts.{name}.scene: missing (a scene file or an inline scene)")
+        merged: dict[str, Any] = {"name": f"{doc.get('name')}/{name}", "scene": part["scene"]}
+        if "renderer" in doc:
+            merged["renderer"] = doc["renderer"]
+        if "seeds" in part or "seeds" in doc:
+            merged["seeds"] = part.get("seeds", doc.get("seeds"))
+        for key in ("set", "axes"):
+            own = part.get(key, {})
+            if not isinstance(own, dict):
+                raise UserError(f"{path}: parts.{name}.{key}: expected a mapping, got {own!r}")
+            merged[key] = {**shared.get(key, {}), **own}
+        out[name] = _part_sweep(path, merged, name)
+        first = next(iter(out.values()))
+        if set(out[name].axes) != set(first.axes):  # NaN categories would match nothing in tables and compare
+            raise UserError(f"{path}: parts.{name}.axes: {', '.join(out[name].axes) or 'none'}; the first part has "
+                            f"{', '.join(first.axes) or 'none'}: every part has the same axes (with its own values), "
+                            f"so that every case has a value in every category")  # fmt: skip
+    return out
 
 
 # --------------------------------------------------------------------------- files and digests
@@ -357,7 +462,7 @@ def build_suite(
     out.mkdir(parents=True, exist_ok=True)
     if not (out / MANIFEST).is_file():  # marks the folder as this suite's (incomplete) build: resumable
         write_json(out / MANIFEST, jsonable(manifest_doc(suite, {})))
-    renderer = suite.sweep.renderer
+    renderer = suite.renderer
     cache = None if cache_dir is None else str(cache_dir)
     todo = [c for c in suite.cases if not _case_done(out / c.path)]
     executor = make_executor(workers, scheduler)
@@ -375,7 +480,7 @@ def build_suite(
             bar.close()
         for c in todo:  # a case interrupted half-written is written again (nearlight wrote it)
             _remove_partial_case(out / c.path)
-        futs = {executor.submit(build_case, task_payload(c.task, suite.sweep), renderer=renderer, cache_dir=cache,
+        futs = {executor.submit(build_case, task_payload(c.task, c.sweep), renderer=renderer, cache_dir=cache,
                                 folder=str(out / c.path)): c for c in todo}  # fmt: skip
         bar = tqdm(total=len(suite.cases), initial=len(suite.cases) - len(todo), desc=f"{suite.name}: cases",
                    unit="case", disable=not progress, file=sys.stderr)  # fmt: skip
@@ -419,7 +524,7 @@ def manifest_doc(suite: Suite, records: Mapping[str, Mapping[str, Any]]) -> dict
         "description": suite.description,
         "definition": Path(suite.source).name,
         "cases_hash": suite.cases_hash,
-        "renderer": suite.sweep.renderer.name,
+        "renderer": suite.renderer.name,
         "nearlight_version": __version__,
         "generator_version": code_version(),
         "environment": collect(),

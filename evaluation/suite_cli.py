@@ -17,8 +17,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "suite",
         help="build a benchmark suite (frozen, versioned captures with checksums) or verify one",
-        description="A suite file (suites/*.yaml) is a sweep file without methods, plus version, categories and "
-        "the pinned hash of its cases. `suite build` renders every case once into a portable folder with "
+        description="A suite file (suites/*.yaml) is a sweep file without methods (or a list of such `parts`, one "
+        "per scene), plus version, categories and the pinned hash of its cases. `suite build` renders every case once into a portable folder with "
         "manifest.json; `suite verify` checks its checksums, or compares it with another build.",
     )
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
@@ -73,10 +73,10 @@ def _build(args: argparse.Namespace) -> int:
 
     check_executor(args)
     suite = load_suite(args.suite)
-    if suite.sweep.renderer.extra is not None:
-        require_extra(suite.sweep.renderer.extra)
+    if suite.renderer.extra is not None:
+        require_extra(suite.renderer.extra)
     check_build_out(args.out, suite)
-    print(f"suite {suite.name} v{suite.version}: {len(suite.cases)} cases, {len(suite.sweep.render_keys)} physical "
+    print(f"suite {suite.name} v{suite.version}: {len(suite.cases)} cases, {len(suite.render_keys)} physical "
           f"configurations -> {args.out}", file=sys.stderr)  # fmt: skip
     import time
 

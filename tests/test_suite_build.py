@@ -201,6 +201,8 @@ def test_changed_definition_is_refused_until_renamed(tmp_path):
         ({"methods": ["full"]}, r"methods: a suite has no methods"),
         ({"version": "one"}, r"version: expected a positive integer"),
         ({"categories": ["colour"]}, r"categories: expected a list of the suite's axes"),
+        ({"axes": {"colour": [1]}}, r"bad\.yaml: axes\.colour: unknown axis"),  # the sweep's error, naming the file
+        ({"name": ""}, r"bad\.yaml: name: expected the suite's name"),
     ],
 )
 def test_bad_suite_files_are_one_line_errors(tmp_path, capsys, change, message):
