@@ -9,7 +9,9 @@ camera (OpenCV's pinhole, the rig file's ``camera.intrinsics`` and
 each ray hits; the hit point is then recomputed in float64 from that
 triangle's plane (Embree works in float32). ``N`` is the triangle's vertex
 normals interpolated at the hit (barycentric) when the file has vertex
-normals, else its face normal; either way turned to face the camera.
+normals, else its face normal; either way on the side of the triangle the ray
+hit (the face normal turned towards the camera; interpolated normals turned to
+agree with it, so a grazing ray's normal may lean slightly away from the camera).
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ def mesh_geometry(rig: RigFile) -> tuple[np.ndarray, np.ndarray]:
     P : ndarray, shape (H, W, 3)
         First hit of each pixel's ray, world frame, metres; NaN where the ray misses.
     N : ndarray, shape (H, W, 3)
-        Unit normals there, facing the camera (``N · (camera − P) ≥ 0``); NaN where ``P`` is.
+        Unit normals there, on the side of the triangle the camera sees; NaN where ``P`` is.
 
     Raises
     ------
@@ -64,12 +66,13 @@ def mesh_geometry(rig: RigFile) -> tuple[np.ndarray, np.ndarray]:
     # the hit again, in float64: the ray meets the triangle's plane at t = n·(v0 − o) / n·d
     dist = np.einsum("ij,ij->i", face_n, corners[:, 0] - origin) / np.einsum("ij,ij->i", face_n, d)
     X = origin + dist[:, None] * d
+    face_n = np.where(np.einsum("ij,ij->i", face_n, d)[:, None] > 0, -face_n, face_n)  # the side the ray hit
     if vertex_normals is None:
         n = face_n
-    else:
+    else:  # on the hit side: a grazing ray may see a vertex normal lean away, which is kept, not flipped
         n = np.einsum("ij,ijk->ik", _barycentric(corners, X), vertex_normals[faces[tri[hit]]])
+        n = np.where(np.einsum("ij,ij->i", n, face_n)[:, None] < 0, -n, n)
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)
-    n = np.where(np.einsum("ij,ij->i", n, d)[:, None] > 0, -n, n)  # facing the camera
     P = np.full(rays.shape, np.nan)
     N = np.full(rays.shape, np.nan)
     P[hit], N[hit] = X, n
