@@ -255,7 +255,7 @@ def _mesh(where: _Where, sec: dict, camera_pose: np.ndarray) -> MeshSpec:
     units = sec.get("units")
     if units is None:
         raise UserError(f"{where.path}: mesh.units: missing (a mesh file has no units: {', '.join(MESH_UNITS)})")
-    if units not in MESH_UNITS:
+    if not isinstance(units, str) or units not in MESH_UNITS:
         raise where.fail("mesh.units", f"one of {', '.join(MESH_UNITS)}", units)
     if "pose" in sec and ("rotation" in sec or "translation" in sec):
         raise UserError(f"{where.path}: mesh.pose: give either pose (4x4) or rotation and translation, not both")

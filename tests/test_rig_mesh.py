@@ -17,6 +17,7 @@ A 640x480 cast of an icosphere of 20480 triangles: 0.35 s (Embree).
 
 from __future__ import annotations
 
+import shutil
 import time
 
 import numpy as np
@@ -206,6 +207,7 @@ CASES = {
     "mesh behind the camera": (_mesh(translation=[0, 0, 2.0]), "mesh.file: board.obj: the camera sees no part of the mesh"),
     "missing units": (lambda d, f: d["mesh"].pop("units"), "mesh.units: missing"),
     "unknown units": (_mesh(units="inch"), "mesh.units: expected one of m, cm, mm"),
+    "units as a list": (_mesh(units=[0.001]), "mesh.units: expected one of m, cm, mm, got [0.001]"),
     "unknown frame": (_mesh(frame="lamp"), "mesh.frame: expected one of world, camera"),
     "unknown mesh key": (_mesh(scale=2), "mesh.scale: unknown key"),
     "depth and mesh": (lambda d, f: d.update(depth={"file": "depth.png"}), "depth, mesh: expected exactly one"),
@@ -215,8 +217,6 @@ CASES = {
 
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_bad_mesh_is_one_line_exit_2(meshdir, tmp_path, capsys, case):
-    import shutil
-
     change, message = CASES[case]
     folder = tmp_path / "r"
     shutil.copytree(meshdir, folder)
