@@ -72,6 +72,8 @@ def mesh_geometry(rig: RigFile) -> tuple[np.ndarray, np.ndarray]:
     else:  # on the hit side: a grazing ray may see a vertex normal lean away, which is kept, not flipped
         n = np.einsum("ij,ijk->ik", _barycentric(corners, X), vertex_normals[faces[tri[hit]]])
         n = np.where(np.einsum("ij,ij->i", n, face_n)[:, None] < 0, -n, n)
+        usable = np.isfinite(n).all(axis=-1) & (np.linalg.norm(n, axis=-1) > 0)
+        n = np.where(usable[:, None], n, face_n)  # a file's zero or NaN normals: the face normal there
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)
     P = np.full(rays.shape, np.nan)
     N = np.full(rays.shape, np.nan)
