@@ -23,10 +23,13 @@ The steps, in order (``docs/rig-files.md``):
    moved into the camera frame (``depth.to_camera``), projected with the
    camera's intrinsics and kept by nearest pixel and nearest depth; pixels no
    point lands on are NaN (holes, format v2); then into the world by the
-   camera's ``pose``.
+   camera's ``pose``. Or, when the rig file gives the object's mesh instead,
+   ``P`` and ``N`` ray-cast from it through each pixel centre
+   (:mod:`nearlight.rig.mesh`).
 
-No normals are written: a depth map has none, and the estimator fits them to
-``P`` (as it does for the generator's range noise).
+A depth map has no normals: none are written, and the estimator fits them to
+``P`` (as it does for the generator's range noise). A mesh's normals are
+written as ``N``, and the estimator uses them.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from ..capture import Camera, Capture, Intrinsics, Sensor, write_capture
 from ..errors import UserError
 from ..physics.camera import inverse_response
 from .images import read_raw
+from .mesh import mesh_geometry
 from .rigfile import RigFile, load_rig_file
 
 #: A demosaiced pixel counts as saturated when a DN it was interpolated from is within this fraction of white level.
@@ -81,7 +85,8 @@ def rig_capture(rig: RigFile) -> Capture:
     Capture
         ``stack`` ``[K, H, W, 3]`` (mono: the one channel in R, G and B), its
         ``analyzer_angles_deg``, ``P`` in the world frame (metres, NaN where no
-        depth), the camera with ``intrinsics``, ``pose`` as ``to_world``
+        depth or where the mesh is missed), ``N`` (unit, facing the camera) from
+        a mesh, None from a depth map, the camera with ``intrinsics``, ``pose`` as ``to_world``
         (Mitsuba's axes), ``fov_x_deg`` when the principal point is the image
         centre and pixels are square; ``sensor`` for a single shot with a known
         noise model.
@@ -95,7 +100,7 @@ def rig_capture(rig: RigFile) -> Capture:
     stack = _merge(stacks, saturated, [s.exposure for s in rig.shots])
     if rig.camera.distortion:
         stack = np.stack([_undistort(img, rig) for img in stack])
-    P = _depth_points(rig)
+    P, N = mesh_geometry(rig) if rig.mesh is not None else (_depth_points(rig), None)
     cam = rig.camera
     intrinsics = Intrinsics(fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy)
     centred = (np.isclose(cam.fx, cam.fy, rtol=1e-6) and np.isclose(cam.cx, (rig.width - 1) / 2, atol=1e-3)
@@ -111,6 +116,7 @@ def rig_capture(rig: RigFile) -> Capture:
         camera=Camera(position=rig.pose[:3, 3].copy(), to_world=rig.pose @ CV_TO_MITSUBA, fov_x_deg=fov,
                       intrinsics=intrinsics),  # fmt: skip
         P=P.astype(np.float32),
+        N=None if N is None else N.astype(np.float32),
         stack=stack.astype(np.float32),
         analyzer_angles_deg=np.asarray(angles, float),
         sensor=sensor,

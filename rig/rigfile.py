@@ -29,7 +29,11 @@ IMX250_PATTERN = ((90.0, 45.0), (135.0, 0.0))
 PATTERNS = {"IMX250": IMX250_PATTERN}
 #: Mosaic kinds: a mono sensor, or a colour one (each 2×2 polarization block one colour, the blocks in an RGGB Bayer).
 MOSAICS = ("mono", "colour")
-_TOP_KEYS = ("format", "camera", "polarization", "depth")
+_TOP_KEYS = ("format", "camera", "polarization", "depth", "mesh")
+#: Mesh length units (``mesh.units``): metres per unit.
+MESH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+#: Frames a mesh's pose may map into (``mesh.frame``).
+MESH_FRAMES = ("world", "camera")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,6 +58,27 @@ class Shot:
 
     files: tuple[Path, ...]
     exposure: float
+
+
+@dataclasses.dataclass(frozen=True)
+class MeshSpec:
+    """The object's mesh and where it is (``mesh`` section).
+
+    Attributes
+    ----------
+    file : Path
+        PLY or OBJ file.
+    to_world : ndarray, shape (4, 4)
+        Mesh coordinates, **in metres** (the file's values times ``units``), to
+        the world frame: ``mesh.pose`` (or ``rotation``, ``translation``),
+        composed with ``camera.pose`` when ``mesh.frame`` is ``camera``.
+    units : float
+        Metres per mesh unit.
+    """
+
+    file: Path
+    to_world: np.ndarray
+    units: float
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,8 +113,9 @@ class RigFile:
         Radiance (the capture's units) of a full well at exposure 1.
     sensor : dict or None
         ``full_well``, ``read_noise``, ``bits`` when the noise model is known.
-    depth_file : Path
-    depth : Pinhole
+    depth_file : Path or None
+        The depth map; None when the geometry is a mesh.
+    depth : Pinhole or None
     depth_size : (int, int) or None
         ``(width, height)`` the depth map must have, when given.
     depth_to_camera : ndarray, shape (4, 4)
@@ -97,6 +123,8 @@ class RigFile:
     depth_row0 : {"top", "bottom"}
     depth_scale : float or None
         Metres per stored unit; None: the file type's default (16-bit PNG/TIFF: 0.001, EXR/.npy: 1).
+    mesh : MeshSpec or None
+        The object's mesh, instead of a depth map (exactly one of the two).
     """
 
     path: Path
@@ -114,12 +142,13 @@ class RigFile:
     response_gamma: float
     saturation: float
     sensor: dict[str, Any] | None
-    depth_file: Path
-    depth: Pinhole
+    depth_file: Path | None
+    depth: Pinhole | None
     depth_size: tuple[int, int] | None
-    depth_to_camera: np.ndarray
-    depth_row0: str
+    depth_to_camera: np.ndarray | None
+    depth_row0: str | None
     depth_scale: float | None
+    mesh: MeshSpec | None
 
 
 def load_rig_file(path: str | os.PathLike) -> RigFile:
@@ -191,23 +220,58 @@ def load_rig_file(path: str | os.PathLike) -> RigFile:
         sensor = {"full_well": where.number(sensor, "polarization.sensor.full_well", None, low=0.0, strict=True),
                   "read_noise": where.number(sensor, "polarization.sensor.read_noise", None, low=0.0),
                   "bits": where.int(sensor, "polarization.sensor.bits")}  # fmt: skip
-    dep = where.section(doc, "depth")
+    if ("depth" in doc) == ("mesh" in doc):
+        raise UserError(f"{path}: depth, mesh: expected exactly one (a depth map or the object's mesh), got "
+                        f"{'both' if 'depth' in doc else 'neither'}")  # fmt: skip
+    if "depth" in doc:
+        depth, mesh = _depth(where, where.section(doc, "depth")), None
+    else:
+        depth = dict.fromkeys(("depth_file", "depth", "depth_size", "depth_to_camera", "depth_row0", "depth_scale"))
+        mesh = _mesh(where, where.section(doc, "mesh"), pose)
+    return RigFile(
+        path=path, width=width, height=height, camera=camera, pose=pose, camera_row0=where.row0(cam, "camera"),
+        mosaic=mosaic, pattern=pattern, angles_deg=angles, shots=shots, black_level=black, white_level=white,
+        response_gamma=gamma, saturation=saturation, sensor=sensor, mesh=mesh, **depth,
+    )  # fmt: skip
+
+
+def _depth(where: _Where, dep: dict) -> dict[str, Any]:
+    """The ``depth`` section's fields of :class:`RigFile`."""
     where.unknown(dep, ("file", "intrinsics", "distortion", "width", "height", "to_camera", "row0", "scale"), "depth.")
-    depth_file = where.file(dep, "depth.file")
     depth_size = None
     if "width" in dep or "height" in dep:
         depth_size = (where.int(dep, "depth.width"), where.int(dep, "depth.height"))
     scale = dep.get("scale")
     if scale is not None:
         scale = where.number(dep, "depth.scale", None, low=0.0, strict=True)
-    return RigFile(
-        path=path, width=width, height=height, camera=camera, pose=pose, camera_row0=where.row0(cam, "camera"),
-        mosaic=mosaic, pattern=pattern, angles_deg=angles, shots=shots, black_level=black, white_level=white,
-        response_gamma=gamma, saturation=saturation, sensor=sensor, depth_file=depth_file,
-        depth=where.pinhole(dep, "depth"), depth_size=depth_size,
-        depth_to_camera=where.matrix(dep.get("to_camera"), "depth.to_camera"), depth_row0=where.row0(dep, "depth"),
-        depth_scale=scale,
-    )  # fmt: skip
+    return {"depth_file": where.file(dep, "depth.file"), "depth": where.pinhole(dep, "depth"), "depth_size": depth_size,
+            "depth_to_camera": where.matrix(dep.get("to_camera"), "depth.to_camera"),
+            "depth_row0": where.row0(dep, "depth"), "depth_scale": scale}  # fmt: skip
+
+
+def _mesh(where: _Where, sec: dict, camera_pose: np.ndarray) -> MeshSpec:
+    """The ``mesh`` section: the file, its units, and its pose composed into mesh-metres -> world."""
+    where.unknown(sec, ("file", "units", "pose", "rotation", "translation", "frame"), "mesh.")
+    units = sec.get("units")
+    if units is None:
+        raise UserError(f"{where.path}: mesh.units: missing (a mesh file has no units: {', '.join(MESH_UNITS)})")
+    if not isinstance(units, str) or units not in MESH_UNITS:
+        raise where.fail("mesh.units", f"one of {', '.join(MESH_UNITS)}", units)
+    if "pose" in sec and ("rotation" in sec or "translation" in sec):
+        raise UserError(f"{where.path}: mesh.pose: give either pose (4x4) or rotation and translation, not both")
+    if "pose" in sec:
+        pose = where.matrix(sec["pose"], "mesh.pose")
+    else:
+        pose = np.eye(4)
+        if "rotation" in sec:
+            pose[:3, :3] = where.rotation(sec["rotation"], "mesh.rotation")
+        if "translation" in sec:
+            pose[:3, 3] = where.numbers(sec["translation"], "mesh.translation", (3,))
+    frame = sec.get("frame", "world")
+    if frame not in MESH_FRAMES:
+        raise where.fail("mesh.frame", f"one of {', '.join(MESH_FRAMES)}", frame)
+    to_world = camera_pose @ pose if frame == "camera" else pose
+    return MeshSpec(file=where.file(sec, "mesh.file"), to_world=to_world, units=MESH_UNITS[units])
 
 
 def _all_numbers(x: Any) -> bool:
@@ -215,6 +279,11 @@ def _all_numbers(x: Any) -> bool:
     if isinstance(x, list):
         return all(_all_numbers(v) for v in x)
     return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _is_rotation(R: np.ndarray) -> bool:
+    """``R`` ``[3, 3]`` is a proper rotation (orthonormal to 1e-6, determinant > 0)."""
+    return bool(np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0)
 
 
 class _Where:
@@ -271,10 +340,15 @@ class _Where:
         if v is None:
             return np.eye(4)
         m = self.numbers(v, key, (4, 4))
-        R = m[:3, :3]
-        if not (np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0 and np.allclose(m[3], [0, 0, 0, 1])):
+        if not (_is_rotation(m[:3, :3]) and np.allclose(m[3], [0, 0, 0, 1])):
             raise self.fail(key, "a 4x4 rigid transform (a rotation and a translation, last row 0 0 0 1)", v)
         return m
+
+    def rotation(self, v: Any, key: str) -> np.ndarray:
+        R = self.numbers(v, key, (3, 3))
+        if not _is_rotation(R):
+            raise self.fail(key, "a 3x3 rotation matrix (orthonormal, determinant +1)", v)
+        return R
 
     def pinhole(self, doc: dict, prefix: str) -> Pinhole:
         k = doc.get("intrinsics")

@@ -12,16 +12,29 @@ noise is negligible and what is left is the import path):
 | 160x120 | mono | EXR | 0.59 % | -0.30 % |
 | 128x96 | colour | EXR | 3.5 % | -1.6 % |
 | 320x240 | colour | EXR | 0.50 % | -0.21 % |
-| 128x96 | mono | PNG, 0.1 mm | 2.4 % | 2.2 % |
-| 256x192 | mono | PNG, 1 mm | 58 % | 193 % |
+| 128x96 | mono | PNG, 0.1 mm | 2.2 % | 2.1 % |
+| 256x192 | mono | PNG, 0.1 mm | 10.9 % | 9.9 % |
+| 128x96 | mono | PNG, 1 mm | 49 % | 107 % |
+| 256x192 | mono | PNG, 1 mm | 58 % | 240 % |
+| 320x240 | mono | PNG, 1 mm | 65 % | 230 % |
 
-Bilinear demosaicing blurs the highlight over a 2-pixel (mono) or 4-pixel
-(colour) period, so the colour mosaic needs about twice the resolution for the
-same error. A quantised depth map is the larger problem: the estimator fits
-normals to ``P`` over small windows, and millimetre steps on a 128-px board
-tilt them (the same capture with exact ``P`` and no ``N`` is exact); the
-round trip's 1 % is therefore tested with float depth, and the 16-bit PNG's
-``P`` against its quantisation.
+(re-measured after the estimator's normals-from-P rewrite, range noise
+choosing the window: the millimetre failure is unchanged.) Bilinear demosaicing blurs
+the highlight over a 2-pixel (mono) or 4-pixel (colour) period, so the colour
+mosaic needs about twice the resolution for the same error. A quantised depth
+map is the larger problem, and here for a reason of its own: the analytic
+camera looks down at the board without roll, so the depth along its axis is
+constant along each image row; the quantised range then has zero fourth
+differences along the rows, and ``estimator.normals.range_noise`` (the median
+over rows and columns together) reads about 1e-9 m of noise instead of the
+columns' 0.19 mm (1 mm steps), so the 3x3 window is kept and millimetre steps
+tilt the normals (median 3.2 deg at 320x240). With the window forced to 31,
+the 256x192 millimetre case gives 0.28 %; with the camera rolled 27 degrees
+(``up=(0.5, 0, 1)``) the window chosen is 17 (1 mm: 4.8 %) or 7 (0.1 mm:
+0.25 %). The round trip's 1 % is therefore tested with float depth, the
+16-bit PNG's ``P`` against its quantisation, and the millimetre estimate as a
+strict xfail, so that a fix in the estimator shows here (and this table is
+measured again).
 """
 
 from __future__ import annotations
@@ -82,6 +95,16 @@ def test_png_depth_is_within_its_quantisation(tmp_path):
     assert err.max() > 0.3e-3  # the quantisation is really there (the test can fail)
     # a depth map has no normals: none are imported (the estimator fits them to P)
     assert imp.N is None
+
+
+@pytest.mark.xfail(strict=True, reason="estimator.normals.range_noise pools rows and columns: depth quantised along "
+                   "the camera's axis, constant along image rows, reads as ~1e-9 m of noise and keeps 3x3 windows")
+def test_full_on_millimetre_depth_lands_within_1_percent(tmp_path):
+    # measured 58 % (256x192, 1 mm PNG) on the estimator of this commit; 0.28 % with the window forced to 31
+    cap = analytic_capture(width=256, height=192)
+    imp = round_trip(tmp_path, cap, mosaic="mono", full_well=1e6, depth_scale=1e-3)
+    lamp, sigma = lamp_change(cap, imp)
+    assert lamp < 0.01 and abs(sigma) < 0.01
 
 
 @pytest.mark.parametrize("mosaic", ["mono", "colour"])
