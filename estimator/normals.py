@@ -133,10 +133,12 @@ def range_noise(P: np.ndarray, camera_position: np.ndarray, valid: np.ndarray | 
     (nanometres for a 15-cm sphere at millimetre pixels) where independent
     noise of standard deviation ``σ_r`` has ``√70 σ_r`` (70 = Σ of the squared
     binomial weights 1, 4, 6, 4, 1); so ``σ_r = 1.4826 · median|Δ⁴ d| / √70``
-    over every run of five surface pixels, robust to the silhouettes' and
-    holes' few large values, and blind to curvature (which plane-fit
-    residuals would take for noise). Depth quantised in steps ``q`` on a
-    slanted surface reads as ``≈ q/√12``.
+    over every run of five surface pixels along rows, and along columns, the
+    larger of the two: robust to the silhouettes' and holes' few large
+    values, and blind to curvature (which plane-fit residuals would take for
+    noise). Depth quantised in steps ``q`` on a slanted surface reads as
+    ``≈ q/√12`` along the axis the steps cross (along the other, for a camera
+    without roll, the depth is constant and its differences zero).
 
     Parameters
     ----------
@@ -153,7 +155,7 @@ def range_noise(P: np.ndarray, camera_position: np.ndarray, valid: np.ndarray | 
     valid = np.all(np.isfinite(P), axis=-1) if valid is None else valid
     d = np.linalg.norm(np.where(valid[..., None], P, 0.0) - np.asarray(camera_position, dtype=float), axis=-1)
     w = np.array([1.0, -4.0, 6.0, -4.0, 1.0])
-    diffs = []
+    sigmas = []
     for axis in (0, 1):
         dd, vv = np.moveaxis(d, axis, -1), np.moveaxis(valid, axis, -1)
         n = dd.shape[-1] - 4
@@ -161,9 +163,11 @@ def range_noise(P: np.ndarray, camera_position: np.ndarray, valid: np.ndarray | 
             continue
         fourth = sum(w[k] * dd[..., k:k + n] for k in range(5))
         run = np.logical_and.reduce([vv[..., k:k + n] for k in range(5)])
-        diffs.append(np.abs(fourth[run]))
-    values = np.concatenate(diffs) if diffs else np.empty(0)
-    return float(1.4826 * np.median(values) / np.sqrt(70.0)) if values.size else np.nan
+        if run.any():
+            sigmas.append(float(1.4826 * np.median(np.abs(fourth[run])) / np.sqrt(70.0)))
+    # the larger of the two axes: depth quantised along a camera without roll is constant along rows
+    # (zero fourth differences there), so a median over both would read the steps as no noise
+    return max(sigmas) if sigmas else np.nan
 
 
 def choose_window(P: np.ndarray, camera_position: np.ndarray, valid: np.ndarray | None = None) -> tuple[int, float, float]:
