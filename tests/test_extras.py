@@ -62,7 +62,8 @@ def test_extras_are_declared():
     extras = project["optional-dependencies"]
     assert [r.split("=")[0] for r in extras["render"]] == ["mitsuba", "drjit"]
     assert extras["cluster"] == ["dask[distributed]>=2024.1"]
-    assert [r.split("=")[0] for r in extras["rig"]] == ["polanalyser", "opencv-python-headless>"]
+    assert [r.split("=")[0].split(";")[0] for r in extras["rig"]] == ["polanalyser", "opencv-python-headless>", "trimesh",
+                                                                  "embreex"]
     assert extras["all"] == ["nearlight[render,cluster,rig]"]
     assert "-e \".[all,test]\"" in (ROOT / "scripts" / "setup").read_text()
 
