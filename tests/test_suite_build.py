@@ -41,14 +41,18 @@ SUITE = {
 N_CASES = 6
 
 
-def write_suite(folder: Path, **changes) -> Path:
-    """The tiny suite file in ``folder``, pinned to its own cases."""
-    doc = {**SUITE, **changes}
+def pinned_suite_file(folder: Path, doc: dict) -> Path:
+    """``doc`` written to ``folder/<name>.yaml`` with its ``cases_hash`` pinned to its own cases."""
     path = folder / f"{doc['name']}.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    doc["cases_hash"] = load_suite(path, check_pin=False).cases_hash
+    doc = {**doc, "cases_hash": load_suite(path, check_pin=False).cases_hash}
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
+
+
+def write_suite(folder: Path, **changes) -> Path:
+    """The tiny suite file in ``folder``, pinned to its own cases."""
+    return pinned_suite_file(folder, {**SUITE, **changes})
 
 
 @pytest.fixture(scope="module")

@@ -19,6 +19,8 @@ from nearlight.cli import main
 from nearlight.errors import UserError
 from nearlight.evaluation.suite import PART, load_suite, read_manifest
 
+from .test_suite_build import pinned_suite_file
+
 REPO = Path(__file__).resolve().parents[1]
 #: Two analytic parts with their own cameras (image sizes, positions) and objects, each with its own
 #: lamp distances; both share the noise axis: board 2 x 2 + sphere 1 x 2 = 6 cases.
@@ -43,12 +45,7 @@ CASES = [("board", "clean", 0.3), ("board", "clean", 0.5), ("board", "sensor", 0
 
 def write_suite(folder: Path, doc: dict | None = None) -> Path:
     """``doc`` (default the two-part suite) in ``folder``, pinned to its own cases."""
-    doc = copy.deepcopy(SUITE if doc is None else doc)
-    path = folder / f"{doc['name']}.yaml"
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    doc["cases_hash"] = load_suite(path, check_pin=False).cases_hash
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    return path
+    return pinned_suite_file(folder, copy.deepcopy(SUITE if doc is None else doc))
 
 
 @pytest.fixture(scope="module")
