@@ -88,10 +88,10 @@ def test_torrance_sparrow_fit_on_ward_is_biased_and_auto_is_not():
     assert errs["torrance_sparrow"] > 1e-3 and errs["auto"] < 1e-5
 
 
-def test_noise_model_is_reported_when_asked():
-    # noise="auto" weighs by the measured camera model and says so in the estimate; the
-    # default ("none") reports no model
+def test_noise_model_is_reported():
+    # the default (noise="auto") weighs by the camera model the capture states and says so in
+    # the estimate; noise="none" reports no model
     clean, cap = _noisy(seed=1, bsdf=BSDFS["torrance_sparrow"])
-    weighted = estimate(cap, method="full", lobe="torrance_sparrow", noise="auto", n_starts=0)
+    weighted = estimate(cap, method="full", lobe="torrance_sparrow", n_starts=0)
     assert weighted.stages["full"]["noise"]["source"] == "sensor"
-    assert estimate(cap, method="full", lobe="torrance_sparrow", n_starts=0).stages["full"]["noise"] is None
+    assert estimate(cap, method="full", lobe="torrance_sparrow", noise="none", n_starts=0).stages["full"]["noise"] is None
