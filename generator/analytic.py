@@ -9,6 +9,12 @@ stack follows the ``ideal`` mode, ``I(θ) = Id/2 + Is·cos²(θ − β)``.
 Default scene (tabletop, metres, z up): a 0.4 m board lying on the table at
 the origin, the camera 0.61 m away looking down at it, the lamp about 0.4 m
 above the board, so the highlight falls inside the board.
+
+Several lamps (``lamps=[{"position": ..., "intensity": ...}, ...]``): radiance
+is linear in the lamps and incoherent light adds, so each lamp's specular and
+diffuse images (each through its own ideal polarizer, with its own phase β)
+are summed, analyzer images included:
+``I(θ) = Σᵢ [Id,i/2 + Is,i·cos²(θ − βᵢ)]``.
 """
 
 from __future__ import annotations
@@ -18,10 +24,15 @@ from typing import Any
 
 import numpy as np
 
-from ..capture import Camera, Capture
+from ..capture import Camera, Capture, Rig
 from ..physics.camera import camera_rays, look_at_matrix
 from ..physics.polarization import analyzer_stack_ideal, through_polarizer
 from ..physics.reflectance import diffuse_radiance, normalize, specular_radiance, tangent_basis
+
+#: Default lamp position, metres: about 0.4 m above the default board.
+DEFAULT_LAMP_POSITION = (0.05, 0.15, 0.35)
+#: Keys of one lamp of ``analytic_capture(lamps=...)``.
+LAMP_KEYS = ("position", "intensity", "phase_deg", "polarizer_axis")
 
 #: Default specular BSDF: the paper's simplified Torrance–Sparrow lobe.
 DEFAULT_BSDF = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1}
@@ -67,8 +78,9 @@ def analytic_capture(
     camera_position: Sequence[float] = (0.0, -0.35, 0.5),
     look_at: Sequence[float] | None = None,
     up: Sequence[float] = (0.0, 0.0, 1.0),
-    lamp_position: Sequence[float] = (0.05, 0.15, 0.35),
-    lamp_intensity: Any = (2.0, 2.0, 2.0),
+    lamp_position: Sequence[float] | None = None,
+    lamp_intensity: Any = None,
+    lamps: Sequence[Mapping[str, Any]] | None = None,
     bsdf: Mapping[str, Any] | None = None,
     kd: Sequence[float] = (0.3, 0.4, 0.35),
     analyzer_angles_deg: Sequence[float] | None = (0.0, 45.0, 90.0, 135.0),
@@ -96,13 +108,20 @@ def analytic_capture(
         Pinhole camera pose (metres); the camera-to-world matrix is Mitsuba's
         look-at (see :func:`look_at_matrix`). ``look_at`` defaults to the
         board's or the sphere's centre.
-    lamp_position : sequence of 3 floats
-        Point lamp, metres.
-    lamp_intensity : float or sequence of 3 floats
+    lamp_position : sequence of 3 floats, optional
+        Point lamp, metres; default :data:`DEFAULT_LAMP_POSITION`.
+    lamp_intensity : float or sequence of 3 floats, optional
         Radiant intensity of the bare lamp, W/sr per channel. An ideal
         polarizer halves it, so ``lamp_intensity / 2`` reaches the surface;
         the default 2 makes that 1, so an estimator's Ks (which absorbs the
         lamp intensity) equals the BSDF's ``ks``.
+    lamps : sequence of mappings, optional
+        Instead of ``lamp_position`` and ``lamp_intensity``: one or more point
+        lamps, each ``{"position": [x, y, z]}`` (metres) with optional
+        ``"intensity"`` (as ``lamp_intensity``, default 2 per channel),
+        ``"phase_deg"`` (its specular light's β, default ``phase_deg``) and
+        ``"polarizer_axis"`` (world, recorded in ``truth.lamps``; default
+        ``[1, 0, 0]``). Each passes its own ideal polarizer; their images add.
     bsdf : mapping, optional
         Specular BSDF dict (a model of :data:`nearlight.physics.reflectance.LOBES`:
         ``torrance_sparrow``, ``ward``, ``ggx`` or ``beckmann``); default
@@ -121,8 +140,27 @@ def analytic_capture(
     -------
     Capture
         ``truth`` holds lamp position, intensity and BSDF; ``extra`` holds
-        ``truth_specular`` and ``truth_diffuse`` (radiance without analyzer).
+        ``truth_specular`` and ``truth_diffuse`` (radiance without analyzer,
+        ``[H, W, 3]``). Given ``lamps``, ``truth.lamps`` lists them (capture
+        format v2); one lamp also has ``lamp_position`` and ``lamp_intensity``,
+        several have neither, and ``extra`` then also holds every lamp's own
+        ``truth_specular_lamp<i>`` and ``truth_diffuse_lamp<i>``.
+
+    Raises
+    ------
+    ValueError
+        ``lamps`` together with ``lamp_position`` or ``lamp_intensity``, an
+        empty ``lamps``, or a lamp with an unknown key or without a position.
     """
+    if lamps is not None:
+        if lamp_position is not None or lamp_intensity is not None:
+            raise ValueError("lamps: give either lamps or lamp_position/lamp_intensity, not both")
+        lamp_list = [_lamp(lamp, i, phase_deg) for i, lamp in enumerate(lamps)]
+        if not lamp_list:
+            raise ValueError("lamps: expected at least one lamp")
+    else:
+        lamp_position = DEFAULT_LAMP_POSITION if lamp_position is None else lamp_position
+        lamp_intensity = (2.0, 2.0, 2.0) if lamp_intensity is None else lamp_intensity
     bsdf = dict(DEFAULT_BSDF if bsdf is None else bsdf)
     origin = np.asarray(camera_position, dtype=float)
     if look_at is None:
@@ -136,27 +174,47 @@ def analytic_capture(
     else:
         raise ValueError(f"shape: expected 'board' or 'sphere', got {shape!r}")
     surface = np.all(np.isfinite(P), axis=-1)
-    intensity = through_polarizer(np.broadcast_to(np.asarray(lamp_intensity, dtype=float), (3,)))
     Pz = np.where(surface[..., None], P, 0.0)
     Nz = np.where(surface[..., None], N, [0.0, 0.0, 1.0])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        spec = specular_radiance(Pz, Nz, origin, lamp_position, intensity, bsdf)
-        diff = diffuse_radiance(Pz, Nz, origin, lamp_position, intensity, kd)
-    spec = np.where(surface[..., None], np.nan_to_num(spec), 0.0)
-    diff = np.where(surface[..., None], diff, 0.0)
+
+    def shade(position: Any, bare_intensity: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Specular and diffuse radiance ``[H, W, 3]`` of one lamp behind its ideal polarizer (0 off the object)."""
+        intensity = through_polarizer(np.broadcast_to(np.asarray(bare_intensity, dtype=float), (3,)))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            spec = specular_radiance(Pz, Nz, origin, position, intensity, bsdf)
+            diff = diffuse_radiance(Pz, Nz, origin, position, intensity, kd)
+        return np.where(surface[..., None], np.nan_to_num(spec), 0.0), np.where(surface[..., None], diff, 0.0)
+
+    def phase(deg: Any) -> np.ndarray:
+        return np.radians(np.broadcast_to(np.asarray(deg, dtype=float), (height, width)))
 
     stack = angles = specular = diffuse = None
-    if analyzer_angles_deg is None:
-        specular, diffuse = spec.astype(np.float32), diff.astype(np.float32)
+    angles = None if analyzer_angles_deg is None else np.asarray(analyzer_angles_deg, dtype=float)
+    per_lamp: dict[str, np.ndarray] = {}
+    if lamps is None:  # v1's one lamp, computed exactly as before lamps existed
+        spec, diff = shade(lamp_position, lamp_intensity)
+        if angles is not None:
+            stack = analyzer_stack_ideal(diff, spec, phase(phase_deg), angles).astype(np.float32)
     else:
-        angles = np.asarray(analyzer_angles_deg, dtype=float)
-        beta = np.radians(np.broadcast_to(np.asarray(phase_deg, dtype=float), (height, width)))
-        stack = analyzer_stack_ideal(diff, spec, beta, angles).astype(np.float32)
-    truth = {
-        "lamp_position": [float(x) for x in lamp_position],
-        "lamp_intensity": [float(x) for x in np.broadcast_to(np.asarray(lamp_intensity, dtype=float), (3,))],
-        "bsdf": {**bsdf, "kd": [float(x) for x in kd], "polarization": "ideal"},
-    }
+        parts = [(*shade(lamp["position"], lamp["intensity"]), phase(lamp["phase_deg"])) for lamp in lamp_list]
+        spec, diff = sum(p[0] for p in parts), sum(p[1] for p in parts)
+        if angles is not None:  # incoherent light adds: Σ Id,i/2 + Is,i cos²(θ − βi)
+            stack = sum(analyzer_stack_ideal(d, s, b, angles) for s, d, b in parts).astype(np.float32)
+        if len(parts) > 1:
+            for i, (s, d, _) in enumerate(parts):
+                per_lamp[f"truth_specular_lamp{i}"] = s.astype(np.float32)
+                per_lamp[f"truth_diffuse_lamp{i}"] = d.astype(np.float32)
+    if angles is None:
+        specular, diffuse = spec.astype(np.float32), diff.astype(np.float32)
+    truth: dict[str, Any] = {}
+    if lamps is None or len(lamp_list) == 1:
+        one_position = lamp_position if lamps is None else lamp_list[0]["position"]
+        one_intensity = lamp_intensity if lamps is None else lamp_list[0]["intensity"]
+        truth["lamp_position"] = [float(x) for x in one_position]
+        truth["lamp_intensity"] = [float(x) for x in np.broadcast_to(np.asarray(one_intensity, dtype=float), (3,))]
+    truth["bsdf"] = {**bsdf, "kd": [float(x) for x in kd], "polarization": "ideal"}
+    if lamps is not None:
+        truth["lamps"] = [_lamp_truth(lamp) for lamp in lamp_list]
     return Capture(
         width=width,
         height=height,
@@ -167,8 +225,37 @@ def analytic_capture(
         analyzer_angles_deg=angles,
         specular=specular,
         diffuse=diffuse,
-        lamp_polarizer_axis=np.array([1.0, 0.0, 0.0]),
+        lamp_polarizer_axis=np.array([1.0, 0.0, 0.0]) if lamps is None else
+        (np.asarray(truth["lamps"][0]["polarizer_axis"]) if len(lamp_list) == 1 else None),
+        rig=Rig(lamps=1 if lamps is None else len(lamp_list)),
         truth=truth,
-        extra={"truth_specular": spec.astype(np.float32), "truth_diffuse": diff.astype(np.float32)},
+        extra={"truth_specular": spec.astype(np.float32), "truth_diffuse": diff.astype(np.float32), **per_lamp},
         meta={"source": "nearlight.generator.analytic.analytic_capture"},
     )
+
+
+def _lamp(lamp: Mapping[str, Any], i: int, phase_deg: Any) -> dict[str, Any]:
+    """Lamp ``i`` of ``analytic_capture(lamps=...)`` with its defaults filled in."""
+    if not isinstance(lamp, Mapping) or "position" not in lamp:
+        raise ValueError(f"lamps[{i}]: expected a mapping with a position, got {lamp!r}")
+    unknown = sorted(set(lamp) - set(LAMP_KEYS))
+    if unknown:
+        raise ValueError(f"lamps[{i}].{unknown[0]}: unknown key (a lamp has {', '.join(LAMP_KEYS)})")
+    position = np.asarray(lamp["position"], dtype=float)
+    if position.shape != (3,):
+        raise ValueError(f"lamps[{i}].position: expected 3 numbers, got {lamp['position']!r}")
+    return {"position": position, "intensity": lamp.get("intensity", (2.0, 2.0, 2.0)),
+            "phase_deg": lamp.get("phase_deg", phase_deg), "polarizer_axis": lamp.get("polarizer_axis", (1.0, 0.0, 0.0))}  # fmt: skip
+
+
+def _lamp_truth(lamp: Mapping[str, Any]) -> dict[str, Any]:
+    """One lamp as ``truth.lamps[i]`` of capture format v2: an ideal isotropic point lamp."""
+    axis = np.asarray(lamp["polarizer_axis"], dtype=float)
+    return {
+        "position": [float(x) for x in lamp["position"]],
+        "intensity": [float(x) for x in np.broadcast_to(np.asarray(lamp["intensity"], dtype=float), (3,))],
+        "radius_m": 0.0,
+        "anisotropy": None,
+        "polarizer_axis": (axis / np.linalg.norm(axis)).tolist(),
+        "polarizer_extinction_ratio": None,
+    }
