@@ -10,7 +10,7 @@ Default scene (tabletop, metres, z up): a 0.4 m board lying on the table at
 the origin, the camera 0.61 m away looking down at it, the lamp about 0.4 m
 above the board, so the highlight falls inside the board.
 
-Several lamps (``lamps=[{"position": ..., "intensity": ...}, ...]``): radiance
+Several lamps (:func:`analytic_capture_lamps`, ``lamps=[{"position": ...}, ...]``): radiance
 is linear in the lamps and incoherent light adds, so each lamp's specular and
 diffuse images (each through its own ideal polarizer, with its own phase β)
 are summed, analyzer images included:
@@ -19,6 +19,7 @@ are summed, analyzer images included:
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -31,6 +32,8 @@ from ..physics.reflectance import diffuse_radiance, normalize, specular_radiance
 
 #: Default lamp position, metres: about 0.4 m above the default board.
 DEFAULT_LAMP_POSITION = (0.05, 0.15, 0.35)
+#: Default bare lamp intensity, W/sr per channel: the ideal polarizer passes 1.
+DEFAULT_LAMP_INTENSITY = (2.0, 2.0, 2.0)
 #: Keys of one lamp of ``analytic_capture(lamps=...)``.
 LAMP_KEYS = ("position", "intensity", "phase_deg", "polarizer_axis")
 
@@ -78,9 +81,8 @@ def analytic_capture(
     camera_position: Sequence[float] = (0.0, -0.35, 0.5),
     look_at: Sequence[float] | None = None,
     up: Sequence[float] = (0.0, 0.0, 1.0),
-    lamp_position: Sequence[float] | None = None,
-    lamp_intensity: Any = None,
-    lamps: Sequence[Mapping[str, Any]] | None = None,
+    lamp_position: Sequence[float] = DEFAULT_LAMP_POSITION,
+    lamp_intensity: Any = DEFAULT_LAMP_INTENSITY,
     bsdf: Mapping[str, Any] | None = None,
     kd: Sequence[float] = (0.3, 0.4, 0.35),
     analyzer_angles_deg: Sequence[float] | None = (0.0, 45.0, 90.0, 135.0),
@@ -108,20 +110,13 @@ def analytic_capture(
         Pinhole camera pose (metres); the camera-to-world matrix is Mitsuba's
         look-at (see :func:`look_at_matrix`). ``look_at`` defaults to the
         board's or the sphere's centre.
-    lamp_position : sequence of 3 floats, optional
-        Point lamp, metres; default :data:`DEFAULT_LAMP_POSITION`.
-    lamp_intensity : float or sequence of 3 floats, optional
+    lamp_position : sequence of 3 floats
+        Point lamp, metres.
+    lamp_intensity : float or sequence of 3 floats
         Radiant intensity of the bare lamp, W/sr per channel. An ideal
         polarizer halves it, so ``lamp_intensity / 2`` reaches the surface;
         the default 2 makes that 1, so an estimator's Ks (which absorbs the
         lamp intensity) equals the BSDF's ``ks``.
-    lamps : sequence of mappings, optional
-        Instead of ``lamp_position`` and ``lamp_intensity``: one or more point
-        lamps, each ``{"position": [x, y, z]}`` (metres) with optional
-        ``"intensity"`` (as ``lamp_intensity``, default 2 per channel),
-        ``"phase_deg"`` (its specular light's β, default ``phase_deg``) and
-        ``"polarizer_axis"`` (world, recorded in ``truth.lamps``; default
-        ``[1, 0, 0]``). Each passes its own ideal polarizer; their images add.
     bsdf : mapping, optional
         Specular BSDF dict (a model of :data:`nearlight.physics.reflectance.LOBES`:
         ``torrance_sparrow``, ``ward``, ``ggx`` or ``beckmann``); default
@@ -141,26 +136,94 @@ def analytic_capture(
     Capture
         ``truth`` holds lamp position, intensity and BSDF; ``extra`` holds
         ``truth_specular`` and ``truth_diffuse`` (radiance without analyzer,
-        ``[H, W, 3]``). Given ``lamps``, ``truth.lamps`` lists them (capture
-        format v2); one lamp also has ``lamp_position`` and ``lamp_intensity``,
-        several have neither, and ``extra`` then also holds every lamp's own
-        ``truth_specular_lamp<i>`` and ``truth_diffuse_lamp<i>``.
+        ``[H, W, 3]``). Several lamps: :func:`analytic_capture_lamps`.
+    """
+    return _capture(lamps=None, **locals())
+
+
+def analytic_capture_lamps(lamps: Sequence[Mapping[str, Any]], **kwargs: Any) -> Capture:
+    """A noise-free capture lit by one or more lamps, computed in closed form.
+
+    Radiance is linear in the lamps and incoherent light adds, so each lamp's
+    specular and diffuse images (each behind its own ideal polarizer, with its
+    own phase β) are summed, analyzer images included:
+    ``I(θ) = Σᵢ [Id,i/2 + Is,i·cos²(θ − βᵢ)]``.
+
+    A function of its own rather than an argument of :func:`analytic_capture`:
+    the evaluation's analytic renderer builds its scenes and render keys from
+    ``analytic_capture``'s signature, which stays as it was so that no existing
+    sweep changes.
+
+    Parameters
+    ----------
+    lamps : sequence of mappings
+        One or more point
+        lamps, each ``{"position": [x, y, z]}`` (metres) with optional
+        ``"intensity"`` (as ``lamp_intensity``, default 2 per channel),
+        ``"phase_deg"`` (its specular light's β, default ``phase_deg``) and
+        ``"polarizer_axis"`` (world, recorded in ``truth.lamps``; default
+        ``[1, 0, 0]``). Each passes its own ideal polarizer; their images add.
+    **kwargs
+        Any other argument of :func:`analytic_capture` (camera, object, BSDF,
+        analyzer angles, ``phase_deg`` the default β of every lamp), not
+        ``lamp_position`` nor ``lamp_intensity``.
+
+    Returns
+    -------
+    Capture
+        As :func:`analytic_capture`'s, with ``truth.lamps`` listing the lamps
+        (capture format v2) and ``rig.lamps`` their number; one lamp also has
+        ``truth.lamp_position`` and ``truth.lamp_intensity`` (and its images
+        are :func:`analytic_capture`'s for that lamp, bit for bit), several
+        have neither, no ``lamp_polarizer_axis``, and every lamp's own
+        ``truth_specular_lamp<i>`` and ``truth_diffuse_lamp<i>`` in ``extra``.
 
     Raises
     ------
     ValueError
-        ``lamps`` together with ``lamp_position`` or ``lamp_intensity``, an
-        empty ``lamps``, or a lamp with an unknown key or without a position.
+        ``lamp_position`` or ``lamp_intensity`` given, an empty ``lamps``, or a
+        lamp with an unknown key or without a position.
+    TypeError
+        An argument :func:`analytic_capture` does not have.
     """
+    for key in ("lamp_position", "lamp_intensity"):
+        if key in kwargs:
+            raise ValueError(f"{key}: give the lamps in lamps, not {key}")
+    bound = inspect.signature(analytic_capture).bind(**kwargs)
+    bound.apply_defaults()
+    return _capture(lamps=lamps, **bound.arguments)
+
+
+def _capture(
+    *,
+    lamps: Sequence[Mapping[str, Any]] | None,
+    shape: str,
+    width: int,
+    height: int,
+    fov_x_deg: float,
+    camera_position: Sequence[float],
+    look_at: Sequence[float] | None,
+    up: Sequence[float],
+    lamp_position: Sequence[float],
+    lamp_intensity: Any,
+    bsdf: Mapping[str, Any] | None,
+    kd: Sequence[float],
+    analyzer_angles_deg: Sequence[float] | None,
+    phase_deg: Any,
+    board_size: float,
+    board_centre: Sequence[float],
+    board_normal: Sequence[float],
+    sphere_centre: Sequence[float],
+    sphere_radius: float,
+    with_normals: bool,
+) -> Capture:
+    """The one implementation of :func:`analytic_capture` (``lamps`` None: its one lamp, ``lamp_position`` and
+    ``lamp_intensity``) and :func:`analytic_capture_lamps` (``lamps``: the lamps, ``lamp_position`` and
+    ``lamp_intensity`` unused)."""
     if lamps is not None:
-        if lamp_position is not None or lamp_intensity is not None:
-            raise ValueError("lamps: give either lamps or lamp_position/lamp_intensity, not both")
         lamp_list = [_lamp(lamp, i, phase_deg) for i, lamp in enumerate(lamps)]
         if not lamp_list:
             raise ValueError("lamps: expected at least one lamp")
-    else:
-        lamp_position = DEFAULT_LAMP_POSITION if lamp_position is None else lamp_position
-        lamp_intensity = (2.0, 2.0, 2.0) if lamp_intensity is None else lamp_intensity
     bsdf = dict(DEFAULT_BSDF if bsdf is None else bsdf)
     origin = np.asarray(camera_position, dtype=float)
     if look_at is None:
@@ -244,7 +307,7 @@ def _lamp(lamp: Mapping[str, Any], i: int, phase_deg: Any) -> dict[str, Any]:
     position = np.asarray(lamp["position"], dtype=float)
     if position.shape != (3,):
         raise ValueError(f"lamps[{i}].position: expected 3 numbers, got {lamp['position']!r}")
-    return {"position": position, "intensity": lamp.get("intensity", (2.0, 2.0, 2.0)),
+    return {"position": position, "intensity": lamp.get("intensity", DEFAULT_LAMP_INTENSITY),
             "phase_deg": lamp.get("phase_deg", phase_deg), "polarizer_axis": lamp.get("polarizer_axis", (1.0, 0.0, 0.0))}  # fmt: skip
 
 

@@ -1,7 +1,8 @@
-"""Captures with several lamps (issue 15): ``analytic_capture(lamps=...)`` and ``truth.lamps`` in capture format v2.
+"""Captures with several lamps (issue 15): ``analytic_capture_lamps`` and ``truth.lamps`` in capture format v2.
 
 numpy only. Golden values: the one-lamp analytic capture as it was before ``lamps`` existed
-(``lamps=[one]`` must give the same images bit for bit), and linearity: the two-lamp images are the
+(``analytic_capture_lamps([one])`` must give its images bit for bit, and ``analytic_capture``'s
+signature, from which the evaluation builds analytic sweeps' scenes and render keys, is unchanged), and linearity: the two-lamp images are the
 sums of the one-lamp images, computed in float64 and stored in float32, so they agree to
 ``3u (|a| + |b|)`` (u = 2⁻²⁴: one rounding of each one-lamp image, one of their float32 sum, one of
 the two-lamp image).
@@ -16,7 +17,7 @@ import pytest
 
 from nearlight.capture import read_capture, write_capture
 from nearlight.errors import UserError
-from nearlight.generator.analytic import analytic_capture
+from nearlight.generator.analytic import analytic_capture, analytic_capture_lamps
 
 U = 2.0**-24
 L0 = {"position": [0.12, 0.1, 0.35], "intensity": [2.0, 2.0, 2.0]}
@@ -25,7 +26,7 @@ L1 = {"position": [-0.1, 0.15, 0.3], "intensity": [1.0, 3.0, 2.0], "phase_deg": 
 
 def test_one_lamp_list_is_the_v1_call_bit_for_bit():
     old = analytic_capture(lamp_position=L0["position"], lamp_intensity=L0["intensity"])
-    new = analytic_capture(lamps=[L0])
+    new = analytic_capture_lamps([L0])
     assert np.array_equal(old.stack, new.stack)
     for k in ("truth_specular", "truth_diffuse"):
         assert np.array_equal(old.extra[k], new.extra[k])
@@ -40,9 +41,9 @@ def test_one_lamp_list_is_the_v1_call_bit_for_bit():
 
 @pytest.mark.parametrize("shape", ["board", "sphere"])
 def test_two_lamps_add(shape):
-    a = analytic_capture(shape=shape, lamps=[L0])
-    b = analytic_capture(shape=shape, lamps=[L1], phase_deg=60.0)
-    ab = analytic_capture(shape=shape, lamps=[L0, L1])
+    a = analytic_capture_lamps([L0], shape=shape)
+    b = analytic_capture_lamps([L1], shape=shape, phase_deg=60.0)
+    ab = analytic_capture_lamps([L0, L1], shape=shape)
     for k in ("truth_specular", "truth_diffuse"):
         x, y = (np.asarray(c.extra[k], float) for c in (a, b))
         assert np.all(np.abs(ab.extra[k] - (x + y)) <= 3 * U * (np.abs(x) + np.abs(y))), k
@@ -59,7 +60,7 @@ def test_two_lamps_add(shape):
 
 
 def test_truth_of_several_lamps_has_no_single_lamp():
-    cap = analytic_capture(lamps=[L0, L1])
+    cap = analytic_capture_lamps([L0, L1])
     assert "lamp_position" not in cap.truth and "lamp_intensity" not in cap.truth
     assert [lamp["position"] for lamp in cap.truth["lamps"]] == [L0["position"], L1["position"]]
     assert cap.truth["lamps"][1]["intensity"] == [1.0, 3.0, 2.0]
@@ -71,30 +72,46 @@ def test_truth_of_several_lamps_has_no_single_lamp():
 
 
 def test_separated_analytic_capture_of_two_lamps():
-    cap = analytic_capture(lamps=[L0, L1], analyzer_angles_deg=None)
+    cap = analytic_capture_lamps([L0, L1], analyzer_angles_deg=None)
     assert cap.stack is None
     assert np.array_equal(cap.specular, cap.extra["truth_specular"])
     assert np.array_equal(cap.diffuse, cap.extra["truth_diffuse"])
 
 
 @pytest.mark.parametrize(
-    ("kwargs", "expect"),
+    ("lamps", "kwargs", "expect"),
     [
-        ({"lamps": [L0], "lamp_position": [0, 0, 1]}, "lamps: give either lamps or lamp_position"),
-        ({"lamps": [L0], "lamp_intensity": 1.0}, "lamps: give either lamps or lamp_position"),
-        ({"lamps": []}, "lamps: expected at least one lamp"),
-        ({"lamps": [L0, {"intensity": [1, 1, 1]}]}, r"lamps\[1\]: expected a mapping with a position"),
-        ({"lamps": [{**L0, "radius": 0.01}]}, r"lamps\[0\].radius: unknown key"),
-        ({"lamps": [{"position": [0, 1]}]}, r"lamps\[0\].position: expected 3 numbers"),
+        ([L0], {"lamp_position": [0, 0, 1]}, "lamp_position: give the lamps in lamps"),
+        ([L0], {"lamp_intensity": 1.0}, "lamp_intensity: give the lamps in lamps"),
+        ([], {}, "lamps: expected at least one lamp"),
+        ([L0, {"intensity": [1, 1, 1]}], {}, r"lamps\[1\]: expected a mapping with a position"),
+        ([{**L0, "radius": 0.01}], {}, r"lamps\[0\].radius: unknown key"),
+        ([{"position": [0, 1]}], {}, r"lamps\[0\].position: expected 3 numbers"),
     ],
 )
-def test_bad_lamps_of_analytic_capture(kwargs, expect):
+def test_bad_lamps_of_analytic_capture(lamps, kwargs, expect):
     with pytest.raises(ValueError, match=expect):
-        analytic_capture(**kwargs)
+        analytic_capture_lamps(lamps, **kwargs)
+    with pytest.raises(TypeError):  # an argument analytic_capture does not have
+        analytic_capture_lamps([L0], widht=3)
+
+
+def test_analytic_capture_signature_is_unchanged():
+    # evaluation/renderers.py builds every analytic sweep scene from these parameters and hashes it into the
+    # render key: the list (and defaults) at e8b09ea, before several lamps.
+    import inspect
+
+    params = inspect.signature(analytic_capture).parameters
+    assert list(params) == ["shape", "width", "height", "fov_x_deg", "camera_position", "look_at", "up",
+                            "lamp_position", "lamp_intensity", "bsdf", "kd", "analyzer_angles_deg", "phase_deg",
+                            "board_size", "board_centre", "board_normal", "sphere_centre", "sphere_radius",
+                            "with_normals"]  # fmt: skip
+    assert params["lamp_position"].default == (0.05, 0.15, 0.35)
+    assert params["lamp_intensity"].default == (2.0, 2.0, 2.0)
 
 
 def test_two_lamp_capture_round_trip(tmp_path):
-    cap = analytic_capture(lamps=[L0, L1])
+    cap = analytic_capture_lamps([L0, L1])
     write_capture(cap, tmp_path / "c")
     doc = json.loads((tmp_path / "c" / "capture.json").read_text())
     assert doc["rig"]["lamps"] == 2 and "lamp_polarizer_axis" not in doc and "lamp_position" not in doc["truth"]
@@ -124,7 +141,7 @@ def _edit(tmp_path, cap, change):
     ],
 )
 def test_bad_truth_of_several_lamps_is_a_one_line_error(tmp_path, change, expect):
-    where = _edit(tmp_path, analytic_capture(lamps=[L0, L1]), change)
+    where = _edit(tmp_path, analytic_capture_lamps([L0, L1]), change)
     with pytest.raises(UserError, match=expect) as err:
         read_capture(where)
     assert "\n" not in str(err.value) and "capture.json" in str(err.value)
@@ -132,6 +149,6 @@ def test_bad_truth_of_several_lamps_is_a_one_line_error(tmp_path, change, expect
 
 def test_one_lamp_truth_keeps_lamp_position_beside_lamps(tmp_path):
     # a one-lamp v2 capture with both v1's keys and truth.lamps reads as before
-    where = _edit(tmp_path, analytic_capture(lamps=[L0]), lambda d: None)
+    where = _edit(tmp_path, analytic_capture_lamps([L0]), lambda d: None)
     back = read_capture(where)
     assert back.truth["lamp_position"] == L0["position"] and len(back.truth["lamps"]) == 1

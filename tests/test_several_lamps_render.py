@@ -15,7 +15,7 @@ lamps, the generator's own acceptance regime). Golden values:
   within ``0.02·max|L0 − L1|`` (the mean of ~1000 such terms has σ ≈ 0.002).
 - closed form: the bounds of tests/test_generator_physics.py (median relative error ≤ 0.5 %, 99th
   percentile ≤ 3 % over object pixels ≥ 2 px from an edge), against the sum of
-  ``nearlight.physics.reflectance`` over the lamps and against ``analytic_capture(lamps=...)``.
+  ``nearlight.physics.reflectance`` over the lamps and against ``analytic_capture_lamps``.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from nearlight.capture import read_capture
 from nearlight.cli import main
 from nearlight.generator import load_scene, render_clean
 from nearlight.generator import render as render_module
-from nearlight.generator.analytic import analytic_capture
+from nearlight.generator.analytic import analytic_capture_lamps
 from nearlight.generator.polarimetry import fit_stokes
 from nearlight.physics import reflectance
 
@@ -128,13 +128,14 @@ def test_two_lamp_truth_images_match_the_closed_form(renders, kind):
 
 
 def test_two_lamp_render_matches_the_analytic_capture(renders):
-    # The same board, camera and lamps in analytic_capture (numpy closed form on its own ray-traced board).
+    # The same board, camera and lamps in analytic_capture_lamps (numpy closed form on its own ray-traced board).
     scene, both, _ = renders
     cam = scene.camera
-    ana = analytic_capture(width=cam.width, height=cam.height, fov_x_deg=cam.fov_x_deg, camera_position=cam.position,
-                           look_at=cam.look_at, board_size=scene.object.size[0], kd=scene.material.kd,
-                           bsdf={"model": "torrance_sparrow", "ks": list(scene.material.ks), "sigma": scene.material.sigma},
-                           lamps=[{"position": lamp.position, "intensity": lamp.intensity} for lamp in scene.lamps])  # fmt: skip
+    lamps = [{"position": lamp.position, "intensity": lamp.intensity} for lamp in scene.lamps]
+    bsdf = {"model": "torrance_sparrow", "ks": list(scene.material.ks), "sigma": scene.material.sigma}
+    ana = analytic_capture_lamps(lamps, width=cam.width, height=cam.height, fov_x_deg=cam.fov_x_deg,
+                                 camera_position=cam.position, look_at=cam.look_at, board_size=scene.object.size[0],
+                                 kd=scene.material.kd, bsdf=bsdf)  # fmt: skip
     m = interior(both.surface_mask & ana.surface_mask)
     assert m.sum() > 0.5 * both.surface_mask.sum()
     assert np.nanmax(np.abs(ana.P[m] - both.P[m])) < 1e-5  # same pixels see the same points (metres)
