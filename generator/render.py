@@ -26,6 +26,13 @@ How a capture is rendered
   channel, and the full image separately.
 - ``P`` and ``N`` come from ``mi.Scene.ray_intersect`` of the same pixel-centre
   rays (shading normals: those the BSDF was evaluated with).
+- **Several lamps** (``lamps:``): every pass lights one lamp (its own emitter
+  and filter) and the passes are summed, radiance being linear in the lamps;
+  in one Mitsuba scene with several emitters the integrator would pick one
+  emitter per sample and a one-sample render would not be exact. Each lamp's
+  own parts are kept as ``truth_specular_lamp<i>`` / ``truth_diffuse_lamp<i>``.
+  A one-lamp scene renders exactly as before lamps were a list (its passes,
+  arrays, render key and capture, bit for bit).
 """
 
 from __future__ import annotations
