@@ -305,7 +305,7 @@ def read_capture(path: str | os.PathLike) -> Capture:
     if v2:
         rig = _rig(take("rig"), json_path)
         sensor = _sensor(take("sensor"), json_path)
-        _check_truth_v2(truth, json_path)
+        _check_truth_v2(truth, json_path, rig)
 
     if not exr_path.is_file():
         raise UserError(f"{exr_path}: missing (a capture directory holds {JSON_NAME} and {EXR_NAME})")
@@ -534,8 +534,13 @@ def _sensor(x: Any, where: Path) -> Sensor | None:
                   read_noise=float(x["read_noise"]), bits=bits)  # fmt: skip
 
 
-def _check_truth_v2(truth: Any, where: Path) -> None:
-    """Check the v2 keys of ``truth`` (``lamps``, ``camera``, ``nuisances``); v1's keys keep v1's (no) checks."""
+def _check_truth_v2(truth: Any, where: Path, rig: Rig | None = None) -> None:
+    """Check the v2 keys of ``truth`` (``lamps``, ``camera``, ``nuisances``); v1's keys keep v1's (no) checks.
+
+    With several lamps, ``truth.lamps`` must have as many as ``rig.lamps`` and there is no one lamp for v1's
+    ``lamp_position`` and ``lamp_intensity`` to be: either of them is an error, so that single-lamp scoring fails
+    loudly instead of grading against one of the lamps.
+    """
     if truth is None:
         return
     if not isinstance(truth, dict):
@@ -567,6 +572,18 @@ def _check_truth_v2(truth: Any, where: Path) -> None:
                 axis = _vector(aniso.get("axis"), where, f"{key}.anisotropy.axis", (3,))
                 if not np.linalg.norm(axis) > 0:
                     raise UserError(f"{where}: {key}.anisotropy.axis: expected a non-zero vector, got {aniso['axis']!r}")
+        if rig is not None and rig.lamps != len(lamps):
+            raise UserError(
+                f"{where}: truth.lamps: lists {len(lamps)} lamp{'s' * (len(lamps) > 1)}, rig.lamps says {rig.lamps} "
+                "(absent: 1)"
+            )
+        if len(lamps) > 1:
+            for v1_key in ("lamp_position", "lamp_intensity"):
+                if v1_key in truth:
+                    raise UserError(
+                        f"{where}: truth.{v1_key}: a capture with {len(lamps)} lamps has no single lamp; "
+                        "each lamp is in truth.lamps"
+                    )
     cam = truth.get("camera")
     if cam is not None:
         if not isinstance(cam, dict):

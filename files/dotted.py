@@ -14,6 +14,9 @@ from ..errors import UserError
 def set_dotted(doc: dict[str, Any], key: str, value: Any, *, where: str) -> None:
     """Set ``doc["a"]["b"] = value`` for ``key = "a.b"``, creating sections on the way.
 
+    A list of sections on the way is indexed by a number from 0: ``lamps.1.position`` is
+    ``doc["lamps"][1]["position"]`` (a list of numbers is a value, not a section).
+
     Raises
     ------
     UserError
@@ -25,17 +28,41 @@ def set_dotted(doc: dict[str, Any], key: str, value: Any, *, where: str) -> None
     if not all(p.strip() for p in parts):
         raise UserError(f"{where}: {key!r}: expected a dotted key of names, e.g. lamp.position")
     for i, part in enumerate(parts[:-1]):
-        child = node.setdefault(part, {})
-        if not isinstance(child, dict):
+        if isinstance(node, list):
+            child = node[_index(node, part, parts[:i], where)]
+        else:
+            child = node.setdefault(part, {})
+        if not (isinstance(child, dict) or _sections(child)):
             raise UserError(f"{where}: {'.'.join(parts[: i + 1])}: is not a section, cannot set {key}")
         node = child
-    node[parts[-1]] = value
+    if isinstance(node, list):
+        node[_index(node, parts[-1], parts[:-1], where)] = value
+    else:
+        node[parts[-1]] = value
+
+
+def _sections(x: Any) -> bool:
+    """Whether ``x`` is a list of sections (mappings), which a dotted key indexes (a list of numbers is a value)."""
+    return isinstance(x, list) and bool(x) and all(isinstance(item, dict) for item in x)
+
+
+def _index(items: list, part: str, before: list[str], where: str) -> int:
+    """``part`` as an index of the list ``items`` (at dotted key ``before``), or a one-line :class:`UserError`."""
+    if not (part.isdigit() and int(part) < len(items)):
+        name = ".".join(before)
+        raise UserError(
+            f"{where}: {name}.{part}: {name} is a list of {len(items)}: expected an index from 0 to {len(items) - 1}"
+        )
+    return int(part)
 
 
 def get_dotted(doc: Mapping[str, Any], key: str, default: Any = None) -> Any:
-    """``doc["a"]["b"]`` for ``key = "a.b"``, or ``default`` when absent."""
+    """``doc["a"]["b"]`` for ``key = "a.b"`` (a list indexed by a number), or ``default`` when absent."""
     node: Any = doc
     for part in key.split("."):
+        if isinstance(node, list) and part.isdigit() and int(part) < len(node):
+            node = node[int(part)]
+            continue
         if not isinstance(node, Mapping) or part not in node:
             return default
         node = node[part]

@@ -62,6 +62,8 @@ def _merge(profile: dict[str, Any], scene: dict[str, Any]) -> dict[str, Any]:
 def expand(data: Any) -> Any:
     """A scene document with its ``realism`` profile's values filled in (explicit keys win).
 
+    The profile's ``lamp`` keys go into ``lamp``, or into every lamp of a ``lamps`` list.
+
     Anything that is not a mapping with a known profile name is returned as is
     (the scene schema then names what is wrong).
     """
@@ -70,4 +72,11 @@ def expand(data: Any) -> Any:
     name = data.get("realism", "none")
     if not isinstance(name, str) or name not in PROFILES or not PROFILES[name]:
         return data
-    return _merge(PROFILES[name], data)
+    profile = PROFILES[name]
+    lamps = data.get("lamps")
+    if "lamp" in data or not isinstance(lamps, list):
+        return _merge(profile, data)
+    # several lamps (``lamps:``): the profile's lamp keys fill in every lamp
+    out = _merge({k: v for k, v in profile.items() if k != "lamp"}, data)
+    out["lamps"] = [_merge(profile.get("lamp", {}), lamp) if isinstance(lamp, dict) else lamp for lamp in lamps]
+    return out

@@ -26,6 +26,13 @@ How a capture is rendered
   channel, and the full image separately.
 - ``P`` and ``N`` come from ``mi.Scene.ray_intersect`` of the same pixel-centre
   rays (shading normals: those the BSDF was evaluated with).
+- **Several lamps** (``lamps:``): every pass lights one lamp (its own emitter
+  and filter) and the passes are summed, radiance being linear in the lamps;
+  in one Mitsuba scene with several emitters the integrator would pick one
+  emitter per sample and a one-sample render would not be exact. Each lamp's
+  own parts are kept as ``truth_specular_lamp<i>`` / ``truth_diffuse_lamp<i>``.
+  A one-lamp scene renders exactly as before lamps were a list (its passes,
+  arrays, render key and capture, bit for bit).
 """
 
 from __future__ import annotations
@@ -35,6 +42,7 @@ import json
 import os
 import re
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -46,7 +54,7 @@ from ..errors import UserError
 from ..files.atomic import atomic_write
 from ..physics.polarization import analyzer_stack
 from .lamp import filter_axes
-from .scene import LAMP_V1_KEYS, LampSpec, MitsubaMaterial, Scene, placement
+from .scene import LAMP_V1_KEYS, LampSpec, MitsubaMaterial, Scene, lamp_name, placement
 
 #: Bump when a change alters rendered values (invalidates caches).
 RENDER_VERSION = 1
@@ -126,7 +134,8 @@ def object_dicts(mi: ModuleType, scene: Scene, bsdf: dict, scratch: Path) -> dic
 
 
 def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int | None = None,
-               lamp_route: str = "emitter", scratch: Path, stokes: bool = False) -> dict:  # fmt: skip
+               lamp_route: str = "emitter", scratch: Path, stokes: bool = False,
+               lit: Sequence[int] | None = None) -> dict:  # fmt: skip
     """The whole Mitsuba scene dict for one render pass.
 
     Parameters
@@ -139,23 +148,32 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
         polarizer sheet (``volpath``); see :mod:`nearlight.generator.lamp`.
     stokes : bool
         Wrap the integrator in Mitsuba's ``stokes`` (for ``mi.render``).
+    lit : sequence of int, optional
+        Indices of ``scene.lamps`` to include, each as its own emitter (and sheet); default every lamp. The
+        renderer lights one lamp per pass (:func:`_render_arrays`): Mitsuba's integrators pick one emitter per
+        sample, so a pass with several lamps is exact only in expectation.
     """
     from . import lamp
 
-    intensity = 1.0 if channel is None else scene.lamp.intensity[channel]
-    facing = scene.lamp_facing
-    if lamp_route == "emitter":
-        spec = scene.lamp
-        lamps = {"lamp": lamp.polarized_lamp(spec.position, intensity, spec.polarizer_axis, facing,
-                                             extinction_ratio=spec.polarizer_extinction_ratio,
-                                             anisotropy_k=spec.anisotropy_k, anisotropy_axis=spec.anisotropy_axis,
-                                             radius=spec.radius)}
-        integrator = {"type": "path", "max_depth": scene.capture.max_depth}
-    else:
-        if not scene.lamp_is_v1:
-            raise ValueError("the polarizer-sheet route renders only an ideal isotropic point lamp")
-        lamps = lamp.polarizer_sheet(mi, scene.lamp.position, intensity, scene.lamp.polarizer_axis, facing)
-        integrator = {"type": "volpath", "max_depth": scene.capture.max_depth}
+    lit = range(len(scene.lamps)) if lit is None else lit
+    lamps: dict[str, dict] = {}
+    for i in lit:
+        spec = scene.lamps[i]
+        intensity = 1.0 if channel is None else spec.intensity[channel]
+        facing = scene.facing(i)
+        name = "lamp" if i == 0 else f"lamp{i}"  # lamp 0's dict is the one-lamp scene's, name included
+        if lamp_route == "emitter":
+            lamps[name] = lamp.polarized_lamp(spec.position, intensity, spec.polarizer_axis, facing,
+                                              extinction_ratio=spec.polarizer_extinction_ratio,
+                                              anisotropy_k=spec.anisotropy_k, anisotropy_axis=spec.anisotropy_axis,
+                                              radius=spec.radius)  # fmt: skip
+        else:
+            if not scene.is_v1_lamp(spec):
+                raise ValueError("the polarizer-sheet route renders only an ideal isotropic point lamp")
+            sheet = lamp.polarizer_sheet(mi, spec.position, intensity, spec.polarizer_axis, facing)
+            lamps.update({name + k.removeprefix("lamp"): v for k, v in sheet.items()})
+    kind = "path" if lamp_route == "emitter" else "volpath"
+    integrator = {"type": kind, "max_depth": scene.capture.max_depth}
     if stokes:
         integrator = {"type": "stokes", "integrator": integrator}
     return {
@@ -314,9 +332,9 @@ def render_key(scene: Scene) -> str:
     rendering; the camera's sub-pixel shift of this seed, not the seed); lamp nuisances and the camera shift at
     their off values are left out, so a scene without them keeps its v1 key."""
     doc = scene.model_dump(mode="json")
-    default_lamp = LampSpec(position=scene.lamp.position).model_dump(mode="json")
-    unused = {"samples"} if scene.lamp.radius == 0 else set()  # a point lamp is not sampled
-    doc["lamp"] = {k: v for k, v in doc["lamp"].items() if k in LAMP_V1_KEYS or (v != default_lamp[k] and k not in unused)}
+    lamps = [_lamp_key(spec) for spec in scene.lamps]
+    lamp_key = "lamp" if len(lamps) == 1 else "lamps"  # a one-lamp scene keeps its key from before lamps existed
+    doc[lamp_key] = lamps[0] if len(lamps) == 1 else lamps
     shift = scene.camera.shift_for(scene.capture.seed)  # what the seed does to the render, and only that
     doc["camera"] = {k: v for k, v in doc["camera"].items() if k not in ("shift_px", "jitter_px")}
     if shift != (0.0, 0.0):
@@ -324,13 +342,21 @@ def render_key(scene: Scene) -> str:
     cap = doc["capture"]
     relevant = {
         "version": RENDER_VERSION,
-        **{k: doc[k] for k in ("camera", "object", "material", "lamp")},
+        **{k: doc[k] for k in ("camera", "object", "material", lamp_key)},
         "spp": cap["spp"],
         "max_depth": cap["max_depth"],
     }
     if scene.object.type == "mesh":
         relevant["mesh_sha256"] = hashlib.sha256(Path(scene.object.file).read_bytes()).hexdigest()
     return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:24]
+
+
+def _lamp_key(spec: LampSpec) -> dict[str, Any]:
+    """What a lamp contributes to :func:`render_key`: v1's keys, and the nuisances away from their off values."""
+    doc = spec.model_dump(mode="json")
+    default = LampSpec(position=spec.position).model_dump(mode="json")
+    unused = {"samples"} if spec.radius == 0 else set()  # a point lamp is not sampled
+    return {k: v for k, v in doc.items() if k in LAMP_V1_KEYS or (v != default[k] and k not in unused)}
 
 
 #: Memory a render needs, measured (peak resident set of ``nearlight render``,
@@ -343,6 +369,8 @@ MEMORY_BASE = 300e6
 MEMORY_PER_PIXEL = 400.0
 MEMORY_PER_ANGLE_PIXEL = 40.0
 MEMORY_PER_PIXEL_PER_CHANNEL_PASSES = 200.0
+#: Per pixel for each lamp after the first: its own Stokes images of two parts, float64 then float32.
+MEMORY_PER_PIXEL_PER_EXTRA_LAMP = 250.0
 
 
 def memory_needed(scene: Scene) -> float:
@@ -351,6 +379,8 @@ def memory_needed(scene: Scene) -> float:
     per_pixel = MEMORY_PER_PIXEL + MEMORY_PER_ANGLE_PIXEL * len(scene.capture.analyzer_angles_deg)
     if isinstance(scene.material, MitsubaMaterial) or scene.capture.max_depth > 2:
         per_pixel += MEMORY_PER_PIXEL_PER_CHANNEL_PASSES
+    if len(scene.lamps) > 1:
+        per_pixel += MEMORY_PER_PIXEL_PER_EXTRA_LAMP * (len(scene.lamps) - 1)
     return MEMORY_BASE + pixels * per_pixel
 
 
@@ -452,6 +482,8 @@ def _cache_entry_ok(arrays: dict[str, np.ndarray], scene: Scene) -> bool:
     for part in ("specular", "diffuse"):
         if f"stokes_{part}" in arrays:
             want[f"stokes_{part}"] = (3, *hw, 3)
+            if len(scene.lamps) > 1:  # every lamp's own part too
+                want.update({f"stokes_{part}_lamp{i}": (3, *hw, 3) for i in range(len(scene.lamps))})
     return all(k in arrays and arrays[k].shape == shape and arrays[k].dtype.kind == "f" for k, shape in want.items())
 
 
@@ -521,14 +553,22 @@ def _load_scene(mi: ModuleType, scene: Scene, doc: dict) -> Any:
         raise UserError(f"{scene.source}: object.file: Mitsuba cannot load {scene.object.file}: {reason}") from None
 
 
-def traced_spp(scene: Scene) -> int:
-    """Samples traced per pixel: ``capture.spp``, times ``lamp.samples`` for a sphere lamp (``lamp.radius`` > 0)."""
+def traced_spp(scene: Scene, lamp: int | None = None) -> int:
+    """Samples traced per pixel in one pass lighting lamp ``lamp`` (default: the one lamp of a one-lamp scene):
+    ``capture.spp``, times ``lamp.samples`` for a sphere lamp (``lamp.radius`` > 0)."""
+    spec = scene.lamp if lamp is None else scene.lamps[lamp]
     spp = scene.capture.spp
-    return spp * scene.lamp.samples if scene.lamp.radius > 0 else spp
+    return spp * spec.samples if spec.radius > 0 else spp
 
 
 def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
-    """Run Mitsuba: ``P``, ``N``, ``to_world`` and Stokes ``[3, H, W, 3]`` per part."""
+    """Run Mitsuba: ``P``, ``N``, ``to_world`` and Stokes ``[3, H, W, 3]`` per part.
+
+    Each lamp is rendered in its own passes and the parts are summed over the lamps (radiance is linear in the
+    lamps; one lamp per pass keeps a point lamp's direct light exact, where Mitsuba would pick one emitter per
+    sample). With several lamps, every lamp's own specular and diffuse parts are kept too
+    (``stokes_<part>_lamp<i>``); a one-lamp scene renders exactly as before lamps were a list.
+    """
     from tqdm import tqdm
 
     from .llvm import mitsuba
@@ -537,34 +577,48 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
     check_mitsuba_bsdf(mi, scene)
     analytic = not isinstance(scene.material, MitsubaMaterial)
     linear = analytic and scene.capture.max_depth == 2
-    if linear:  # unit renders, scaled per channel below
-        passes = [(p, None) for p in ("specular", "diffuse")]
-    else:
-        passes = [(p, c) for c in range(3) for p in (("specular", "diffuse", "full") if analytic else ("full",))]
-    spp = traced_spp(scene)
+    several = len(scene.lamps) > 1
+    passes = []
+    for i in range(len(scene.lamps)):
+        if linear:  # unit renders, scaled per channel below
+            passes += [(p, None, i) for p in ("specular", "diffuse")]
+        else:
+            passes += [(p, c, i) for c in range(3) for p in (("specular", "diffuse", "full") if analytic else ("full",))]
     _remove_stale_scratch()
+    total = sum(traced_spp(scene, i) for _, _, i in passes)
     with tempfile.TemporaryDirectory(prefix=f"{SCRATCH_PREFIX}{os.getpid()}-") as scratch, tqdm(
-        total=len(passes) * spp, desc=f"render ({len(passes)} passes)", unit="spp", disable=not progress, leave=False
+        total=total, desc=f"render ({len(passes)} passes)", unit="spp", disable=not progress, leave=False
     ) as bar:
         stokes: dict[str, np.ndarray] = {}
-        for i, (part, channel) in enumerate(passes):
-            mscene = _load_scene(mi, scene, scene_dict(mi, scene, part=part, channel=channel, scratch=Path(scratch)))
-            if i == 0:  # every pass has the same geometry: check it before any rendering
+        for n, (part, channel, i) in enumerate(passes):
+            doc = scene_dict(mi, scene, part=part, channel=channel, scratch=Path(scratch), lit=[i])
+            mscene = _load_scene(mi, scene, doc)
+            if n == 0:  # every pass has the same geometry: check it before any rendering
                 P, N = surface(mi, mscene)
                 _check_geometry(mi, scene, mscene, P)
                 to_world = np.asarray(mscene.sensors()[0].world_transform().matrix, float).reshape(4, 4)
-            s = trace_stokes(mi, mscene, spp=spp, tick=bar.update)
+            s = trace_stokes(mi, mscene, spp=traced_spp(scene, i), tick=bar.update)
+            keys = [f"{part}_lamp{i}", part] if several else [part]
             if channel is None:
-                scale = np.asarray(scene.lamp.intensity) * np.asarray(
+                scale = np.asarray(scene.lamps[i].intensity) * np.asarray(
                     scene.material.specular if part == "specular" else scene.material.kd
                 )
-                stokes[part] = s[..., None] * scale
+                value = s[..., None] * scale
+                for key in keys:  # the first lamp's value as is (bit for bit the one-lamp render), then sums
+                    stokes[key] = value if key not in stokes else stokes[key] + value
             else:
-                stokes.setdefault(part, np.zeros((*s.shape, 3)))[..., channel] = s
+                for key in keys:
+                    if key not in stokes:
+                        stokes[key] = np.zeros((*s.shape, 3))
+                        stokes[key][..., channel] = s
+                    elif key == part and i > 0:
+                        stokes[key][..., channel] += s
+                    else:
+                        stokes[key][..., channel] = s
     if linear:
         stokes["full"] = stokes["specular"] + stokes["diffuse"]
     out = {"P": P, "N": N, "to_world": to_world}
-    out.update({f"stokes_{k}": v.astype(np.float32) for k, v in stokes.items()})
+    out.update({f"stokes_{k}": v.astype(np.float32) for k, v in stokes.items() if not k.startswith("full_")})
     return out
 
 
@@ -576,30 +630,42 @@ def _check_geometry(mi: ModuleType, scene: Scene, geometry: Any, P: np.ndarray) 
             f"{scene.source}: camera: sees no part of the object (check camera.position/look_at/fov_x_deg "
             f"and object.position)"
         )
-    if scene.object.type in CLOSED and lamp_inside(mi, geometry, scene.lamp.position):
-        raise UserError(f"{scene.source}: lamp.position: {list(scene.lamp.position)} is inside the object")
-    if scene.lamp.radius > 0:
-        gap = float(np.nanmin(np.linalg.norm(P - np.asarray(scene.lamp.position), axis=-1)))
-        if gap <= scene.lamp.radius:
-            raise UserError(
-                f"{scene.source}: lamp.radius: {scene.lamp.radius} m reaches the object (a surface point the camera "
-                f"sees is {gap:.4g} m from the lamp's centre)"
-            )
+    for i, spec in enumerate(scene.lamps):
+        name = lamp_name(i, len(scene.lamps))
+        if scene.object.type in CLOSED and lamp_inside(mi, geometry, spec.position):
+            raise UserError(f"{scene.source}: {name}.position: {list(spec.position)} is inside the object")
+        if spec.radius > 0:
+            gap = float(np.nanmin(np.linalg.norm(P - np.asarray(spec.position), axis=-1)))
+            if gap <= spec.radius:
+                raise UserError(
+                    f"{scene.source}: {name}.radius: {spec.radius} m reaches the object (a surface point the camera "
+                    f"sees is {gap:.4g} m from the lamp's centre)"
+                )
 
 
-def lamp_truth(scene: Scene) -> dict[str, Any]:
-    """The scene's lamp as ``truth.lamps[i]`` of capture format v2 (world frame, metres, W/sr)."""
-    spec = scene.lamp
-    axis = spec.anisotropy_axis if spec.anisotropy_axis is not None else scene.lamp_facing
+def lamp_truth(scene: Scene, i: int = 0) -> dict[str, Any]:
+    """Lamp ``i`` of the scene as ``truth.lamps[i]`` of capture format v2 (world frame, metres, W/sr)."""
+    spec = scene.lamps[i]
+    facing = scene.facing(i)
+    axis = spec.anisotropy_axis if spec.anisotropy_axis is not None else facing
     return {
         "position": list(spec.position),
         "intensity": list(spec.intensity),
         "radius_m": spec.radius,
         "anisotropy": None if spec.anisotropy_k == 0 else
         {"k": spec.anisotropy_k, "axis": (np.asarray(axis, float) / np.linalg.norm(axis)).tolist()},
-        "polarizer_axis": filter_axes(spec.polarizer_axis, scene.lamp_facing)[0].tolist(),
+        "polarizer_axis": filter_axes(spec.polarizer_axis, facing)[0].tolist(),
         "polarizer_extinction_ratio": spec.polarizer_extinction_ratio,
     }  # fmt: skip
+
+
+def truth_of(scene: Scene) -> dict[str, Any]:
+    """The capture's ``truth`` for ``scene``: ``lamps`` lists every lamp (:func:`lamp_truth`); a one-lamp scene also
+    has v1's ``lamp_position`` and ``lamp_intensity``, a scene with several lamps has neither (single-lamp scoring
+    then fails loudly instead of grading against one of them)."""
+    one = len(scene.lamps) == 1
+    v1 = {"lamp_position": list(scene.lamp.position), "lamp_intensity": list(scene.lamp.intensity)} if one else {}
+    return {**v1, "bsdf": scene.material.truth(), "lamps": [lamp_truth(scene, i) for i in range(len(scene.lamps))]}
 
 
 def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Capture:
@@ -611,8 +677,13 @@ def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Captur
     for part in ("specular", "diffuse"):
         if f"stokes_{part}" in arrays:
             extra[f"truth_{part}"] = arrays[f"stokes_{part}"][0]
+    for i in range(len(scene.lamps) if len(scene.lamps) > 1 else 0):
+        for part in ("specular", "diffuse"):
+            if f"stokes_{part}_lamp{i}" in arrays:
+                extra[f"truth_{part}_lamp{i}"] = arrays[f"stokes_{part}_lamp{i}"][0]
     extra["mask"] = mask.astype(np.float32)
     angles = np.asarray(scene.capture.analyzer_angles_deg, float)
+    one = len(scene.lamps) == 1
     cam = scene.camera
     return Capture(
         width=cam.width,
@@ -622,14 +693,10 @@ def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Captur
         N=N,
         stack=analyzer_stack(full, angles).astype(np.float32),
         analyzer_angles_deg=angles,
-        lamp_polarizer_axis=filter_axes(scene.lamp.polarizer_axis, scene.lamp_facing)[0],
-        truth={
-            "lamp_position": list(scene.lamp.position),
-            "lamp_intensity": list(scene.lamp.intensity),
-            "bsdf": scene.material.truth(),
-            "lamps": [lamp_truth(scene)],
-        },
-        rig=Rig(lamp_polarizer_extinction_ratio=scene.lamp.polarizer_extinction_ratio),
+        # v1's one lamp polarizer axis; with several lamps each has its own (truth.lamps), and no one is "the" axis
+        lamp_polarizer_axis=filter_axes(scene.lamp.polarizer_axis, scene.lamp_facing)[0] if one else None,
+        truth=truth_of(scene),
+        rig=Rig(lamps=len(scene.lamps), lamp_polarizer_extinction_ratio=scene.lamps[0].polarizer_extinction_ratio),
         extra=extra,
         meta={
             "generator": {

@@ -24,9 +24,11 @@ from pydantic import (
     ConfigDict,
     Field,
     PrivateAttr,
+    SerializerFunctionWrapHandler,
     ValidationError,
     ValidationInfo,
     field_validator,
+    model_serializer,
     model_validator,
 )
 
@@ -410,13 +412,51 @@ class CaptureSpec(_Model):
         return v
 
 
+#: Most lamps a scene may have (each is rendered in its own passes).
+MAX_LAMPS = 8
+
+
+class SeveralLampsError(ValueError):
+    """``Scene.lamp`` (and its one-lamp helpers) asked of a scene with several lamps."""
+
+
+def lamp_name(i: int, n: int) -> str:
+    """The scene key of lamp ``i`` of ``n``: ``lamp`` for a one-lamp scene, else ``lamps.<i>``."""
+    return "lamp" if n == 1 else f"lamps.{i}"
+
+
+def _lamp_list(data: Any) -> Any:
+    """A scene document with ``lamp:`` turned into ``lamps: [lamp]`` (the one internal form).
+
+    Raises
+    ------
+    ValueError
+        Both ``lamp`` and ``lamps`` are given.
+    """
+    if not isinstance(data, dict) or "lamp" not in data:
+        return data
+    if "lamps" in data:
+        raise ValueError(BOTH_LAMP_KEYS)
+    out = {k: v for k, v in data.items() if k != "lamp"}
+    out["lamps"] = [data["lamp"]]
+    return out
+
+
+BOTH_LAMP_KEYS = "lamps: give either lamp (one lamp) or lamps (a list of lamps), not both"
+
+
 class Scene(_Model):
-    """A scene file. Sections as the classes above; see ``scenes/*.yaml``."""
+    """A scene file. Sections as the classes above; see ``scenes/*.yaml``.
+
+    The lamps are ``lamps`` (a tuple of :class:`LampSpec`, 1 to :data:`MAX_LAMPS`); a file gives either
+    ``lamp:`` (one lamp) or ``lamps:`` (a list). A one-lamp scene dumps as ``lamp:`` (exactly as before several
+    lamps existed), a scene with several as ``lamps:``; :attr:`lamp` is the one lamp of a one-lamp scene.
+    """
 
     camera: CameraSpec
     object: ObjectSpec
     material: MaterialSpec
-    lamp: LampSpec
+    lamps: Annotated[tuple[LampSpec, ...], Field(min_length=1, max_length=MAX_LAMPS)]
     capture: CaptureSpec = Field(default_factory=CaptureSpec)
     realism: Literal["none", "lab", "bench", "rough"] = "none"
     nuisances: Nuisances = Field(default_factory=Nuisances)
@@ -425,35 +465,82 @@ class Scene(_Model):
     @model_validator(mode="before")
     @classmethod
     def _profile(cls, data: Any) -> Any:
-        """Expand ``realism`` into its nuisance values; keys the scene sets itself win."""
+        """``lamp:`` as a one-element ``lamps:``; ``realism`` expanded into its nuisance values (keys the scene
+        sets itself win)."""
         from .realism import expand
 
-        return expand(data)
+        return expand(_lamp_list(data))
 
     @model_validator(mode="after")
     def _lamp_filter(self) -> Scene:
-        facing = np.subtract(self.object.position, self.lamp.position)
-        if not np.linalg.norm(facing) > 0:
-            raise ValueError("lamp.position: must differ from object.position (the lamp's filter faces the object)")
-        n = facing / np.linalg.norm(facing)
-        a = np.asarray(self.lamp.polarizer_axis, float) / np.linalg.norm(self.lamp.polarizer_axis)
-        if np.linalg.norm(a - np.dot(a, n) * n) < 1e-3:
-            raise ValueError(
-                "lamp.polarizer_axis: points from the lamp at the object; the filter faces the object, "
-                "so its axis must lie across that direction"
-            )
+        n = len(self.lamps)
+        for i, lamp in enumerate(self.lamps):
+            name = lamp_name(i, n)
+            facing = np.subtract(self.object.position, lamp.position)
+            if not np.linalg.norm(facing) > 0:
+                raise ValueError(
+                    f"{name}.position: must differ from object.position (the lamp's filter faces the object)"
+                )
+            f = facing / np.linalg.norm(facing)
+            a = np.asarray(lamp.polarizer_axis, float) / np.linalg.norm(lamp.polarizer_axis)
+            if np.linalg.norm(a - np.dot(a, f) * f) < 1e-3:
+                raise ValueError(
+                    f"{name}.polarizer_axis: points from the lamp at the object; the filter faces the object, "
+                    "so its axis must lie across that direction"
+                )
+            if lamp.polarizer_extinction_ratio != self.lamps[0].polarizer_extinction_ratio:
+                raise ValueError(
+                    f"{name}.polarizer_extinction_ratio: every lamp's filter must have the same extinction ratio "
+                    f"(the capture's rig records one), got {lamp.polarizer_extinction_ratio} and lamps.0's "
+                    f"{self.lamps[0].polarizer_extinction_ratio}"
+                )
         return self
 
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """``lamps`` dumped as ``lamp`` (a mapping) for one lamp, in its place: a one-lamp scene's dump is what it
+        was before several lamps existed (capture.json's ``generator.scene``, render keys, sweeps)."""
+        doc = handler(self)
+        if len(self.lamps) != 1:
+            return doc
+        return {("lamp" if k == "lamps" else k): (v[0] if k == "lamps" else v) for k, v in doc.items()}
+
     @property
-    def lamp_facing(self) -> np.ndarray:
-        """Normal of the lamp's polarizer filter: from the lamp towards ``object.position``."""
-        facing = np.subtract(self.object.position, self.lamp.position)
+    def lamp(self) -> LampSpec:
+        """The lamp of a one-lamp scene.
+
+        Raises
+        ------
+        SeveralLampsError
+            The scene has several lamps (use :attr:`lamps`).
+        """
+        if len(self.lamps) != 1:
+            raise SeveralLampsError(
+                f"{self.source}: the scene has {len(self.lamps)} lamps (lamps:); Scene.lamp is defined only for a "
+                "one-lamp scene: use Scene.lamps"
+            )
+        return self.lamps[0]
+
+    def facing(self, i: int = 0) -> np.ndarray:
+        """Normal of lamp ``i``'s polarizer filter: unit vector from the lamp towards ``object.position``."""
+        facing = np.subtract(self.object.position, self.lamps[i].position)
         return facing / np.linalg.norm(facing)
 
     @property
+    def lamp_facing(self) -> np.ndarray:
+        """Normal of the (one) lamp's polarizer filter: from the lamp towards ``object.position``."""
+        self.lamp  # noqa: B018 (raises for several lamps)
+        return self.facing(0)
+
+    @staticmethod
+    def is_v1_lamp(lamp: LampSpec) -> bool:
+        """Whether ``lamp`` is v1's: an ideal polarizer, isotropic, a point (every lamp nuisance off)."""
+        return lamp.polarizer_extinction_ratio is None and lamp.anisotropy_k == 0 and lamp.radius == 0
+
+    @property
     def lamp_is_v1(self) -> bool:
-        """Whether the lamp is v1's: an ideal polarizer, isotropic (every lamp nuisance off)."""
-        return self.lamp.polarizer_extinction_ratio is None and self.lamp.anisotropy_k == 0 and self.lamp.radius == 0
+        """Whether the (one) lamp is v1's: an ideal polarizer, isotropic (every lamp nuisance off)."""
+        return self.is_v1_lamp(self.lamp)
 
     def __eq__(self, other: object) -> bool:  # the source file name is not part of the scene
         return isinstance(other, Scene) and self.model_dump() == other.model_dump()
@@ -502,14 +589,54 @@ def load_scene(
         data = load_yaml_file(path, what="scene file")
         if not isinstance(data, dict):
             raise UserError(f"{path}: expected a mapping with camera, object, material, lamp, capture")
+    if "lamp" in data and "lamps" in data:
+        raise UserError(f"{name}: {BOTH_LAMP_KEYS}")
     for key, value in _parse_overrides(overrides):
-        set_dotted(data, key, value, where=name)
+        set_scene_key(data, key, value, where=name)
+    single = "lamp" in data  # errors inside the lamp then name it lamp.<key>, as the file does
     try:
         scene = Scene.model_validate(data, context={"base": base})
     except ValidationError as exc:
-        raise UserError(f"{name}: {_describe(exc)}") from None
+        raise UserError(f"{name}: {_describe(exc, single_lamp=single)}") from None
     scene._source = name
     return scene
+
+
+def set_scene_key(data: dict[str, Any], key: str, value: Any, *, where: str) -> None:
+    """Apply one override ``key = value`` to a scene document (``--set``), lamps addressed either way.
+
+    ``lamp.<key>`` is the lamp of a one-lamp scene (written ``lamp:`` or as a one-element ``lamps:``);
+    ``lamps.<i>.<key>`` is lamp ``i`` (from 0) of a ``lamps:`` list, and ``lamps.0.<key>`` also the lamp of a
+    ``lamp:`` scene. Setting ``lamp`` or ``lamps`` whole replaces the scene's lamps.
+
+    Raises
+    ------
+    UserError
+        ``lamp.<key>`` on a scene with several lamps, or a lamp index that is not one of the scene's; one line
+        starting with ``where``.
+    """
+    parts = str(key).split(".")
+    head = parts[0]
+    if head in ("lamp", "lamps") and len(parts) == 1:
+        data.pop("lamps" if head == "lamp" else "lamp", None)  # the whole lamp or list: it replaces the lamps
+    elif head == "lamp" and "lamp" not in data and isinstance(data.get("lamps"), list):
+        n = len(data["lamps"])
+        if n != 1:
+            raise UserError(
+                f"{where}: {key}: the scene has {n} lamps (lamps:); address one as lamps.<i>.{'.'.join(parts[1:])}, "
+                f"i from 0 to {n - 1}"
+            )
+        parts = ["lamps", "0", *parts[1:]]
+    elif head == "lamps" and len(parts) > 1:
+        lamps = data.get("lamps")
+        n = 1 if "lamp" in data else len(lamps) if isinstance(lamps, list) else None
+        index = parts[1]
+        if n is not None and not (index.isdigit() and int(index) < n):
+            have = "lamps.0 (or lamp)" if "lamp" in data else f"lamps.0 to lamps.{n - 1}"
+            raise UserError(f"{where}: {key}: no lamp {index!r}: the scene has {n} lamp{'s' * (n > 1)} ({have})")
+        if "lamp" in data:
+            parts = ["lamp", *parts[2:]]
+    set_dotted(data, ".".join(parts), value, where=where)
 
 
 def _parse_overrides(overrides: Iterable[str] | Mapping[str, Any]) -> list[tuple[str, Any]]:
@@ -518,16 +645,25 @@ def _parse_overrides(overrides: Iterable[str] | Mapping[str, Any]) -> list[tuple
     return [parse_setting(item, example="lamp.position=[0.2,0.1,0.3]") for item in overrides]
 
 
-def _describe(exc: ValidationError) -> str:
-    """One line for the first validation error: dotted key, message, offending input."""
+def _describe(exc: ValidationError, *, single_lamp: bool = False) -> str:
+    """One line for the first validation error: dotted key, message, offending input.
+
+    ``single_lamp``: the file wrote ``lamp:``, so ``lamps.0.<key>`` is named ``lamp.<key>``.
+    """
     # A misspelt key shows as "unknown key" plus "missing": report the unknown key first.
-    errors = sorted(exc.errors(include_url=False), key=lambda e: {"extra_forbidden": 0, "missing": 2}.get(e["type"], 1))
+    errors = exc.errors(include_url=False)
+    # A lamp that fails also leaves the lamps tuple too short: report the lamp's own error alone.
+    errors = [e for e in errors if not (e["loc"] == ("lamps",) and e["type"] == "too_short"
+                                        and any(len(o["loc"]) > 1 and o["loc"][0] == "lamps" for o in errors))]
+    errors = sorted(errors, key=lambda e: {"extra_forbidden": 0, "missing": 2}.get(e["type"], 1))
     err = errors[0]
     loc: list[str] = []
     for i, part in enumerate(err["loc"]):
         if i > 0 and part in _TAGS and err["loc"][i - 1] in ("object", "material"):
             continue  # the discriminated-union tag pydantic inserts
         loc.append(str(part))
+    if single_lamp and loc[:2] == ["lamps", "0"]:
+        loc[:2] = ["lamp"]
     msg = err["msg"].removeprefix("Value error, ")
     if err["type"] == "missing" and loc and loc[-1].isdigit():  # a short tuple: name the tuple
         loc.pop()
@@ -541,7 +677,7 @@ def _describe(exc: ValidationError) -> str:
     got = err.get("input")
     quiet = got is None or isinstance(got, dict) or err["type"] in ("extra_forbidden", "missing")
     shown = "" if quiet else f" (got {got!r})"
-    more = len(exc.errors()) - 1
+    more = len(errors) - 1
     tail = f" [and {more} more error{'s' * (more > 1)}]" if more else ""
     return (f"{key}: " if key else "") + f"{msg}{shown}{tail}"
 

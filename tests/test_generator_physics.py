@@ -60,6 +60,9 @@ def board(request):
 
 def closed_form(cap, kind: str) -> np.ndarray:
     t = cap.truth
+    if "lamp_position" not in t:  # several lamps (scenes/two_lamps.yaml): their radiance adds
+        return sum(closed_form(cap.replace(truth={"lamp_position": lamp["position"], "lamp_intensity": lamp["intensity"],
+                                                  "bsdf": t["bsdf"]}), kind) for lamp in t["lamps"])  # fmt: skip
     half = np.asarray(t["lamp_intensity"]) / 2  # an ideal polarizer passes half of unpolarized light
     args = (cap.P, cap.N, cap.camera.position, t["lamp_position"], half)
     if kind == "specular":
