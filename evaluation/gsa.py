@@ -46,7 +46,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from ..errors import UserError
-from ..files.yamlfile import load_yaml_file
+from ..files.yamlfile import load_yaml_mapping
 from .sweep import Sweep, _SweepFile, load_sweep
 from .sweep import _label as axis_label  # one home for how an axis value labels itself
 
@@ -404,11 +404,7 @@ def load_study(source: str | Path, *, settings: Mapping[str, Any] = (), design: 
 
     p = Path(source)
     path = str(p)
-    if not p.is_file():
-        raise UserError(f"{p}: no such GSA file")
-    doc = load_yaml_file(p, what="GSA file")
-    if not isinstance(doc, dict):
-        raise UserError(f"{p}: expected a mapping of GSA keys (name, scene, inputs, designs, methods)")
+    doc = load_yaml_mapping(p, what="GSA file", keys="name, scene, inputs, designs, methods")
     for key, value in dict(settings).items():
         set_dotted(doc, key, value, where=f"--set {key}")
     try:

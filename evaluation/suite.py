@@ -153,14 +153,10 @@ def load_suite(path: str | Path, *, check_pin: bool = True) -> Suite:
     UserError
         One line naming the file and key.
     """
-    from ..files.yamlfile import load_yaml_file
+    from ..files.yamlfile import load_yaml_mapping
 
     p = Path(path)
-    if not p.is_file():
-        raise UserError(f"{p}: no such suite file")
-    doc = load_yaml_file(p, what="suite file")
-    if not isinstance(doc, dict):
-        raise UserError(f"{p}: expected a mapping of suite keys (name, version, scene, axes, seeds)")
+    doc = load_yaml_mapping(p, what="suite file", keys="name, version, scene, axes, seeds")
     if "methods" in doc:
         raise UserError(f"{p}: methods: a suite has no methods (`nearlight score` names the method)")
     version, categories, pinned = (doc.pop(k, None) for k in SUITE_KEYS)

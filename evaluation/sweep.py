@@ -28,7 +28,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from ..errors import UserError
-from ..files.yamlfile import load_yaml_file
+from ..files.yamlfile import load_yaml_mapping
 from ..files.dotted import set_dotted
 from ..physics.reflectance import LOBES
 from .renderers import RENDERERS, Renderer
@@ -199,11 +199,7 @@ def load_sweep(
     else:
         p = Path(source)
         path, base_dir = str(p), p.parent
-        if not p.is_file():
-            raise UserError(f"{p}: no such sweep file")
-        doc = load_yaml_file(p, what="sweep file")
-        if not isinstance(doc, dict):
-            raise UserError(f"{p}: expected a mapping of sweep keys (name, scene, axes, seeds, methods)")
+        doc = load_yaml_mapping(p, what="sweep file", keys="name, scene, axes, seeds, methods")
     try:
         spec = _SweepFile.model_validate(doc)
     except ValidationError as exc:

@@ -105,3 +105,24 @@ def load_yaml_file(path: str | os.PathLike, *, what: str) -> Any:
         raise UserError(f"{path}: not valid YAML{where}: {' '.join(str(problem).split())}") from None
     except RecursionError:
         raise UserError(f"{path}: not a {what}: nested too deeply") from None
+
+
+def load_yaml_mapping(path: str | os.PathLike, *, what: str, keys: str) -> dict:
+    """A YAML file that must hold a mapping (a sweep, GSA or suite file), or a one-line :class:`UserError`.
+
+    Parameters
+    ----------
+    path : path-like
+    what : str
+        What the file is, for messages (e.g. ``"sweep file"``).
+    keys : str
+        Its top-level keys, for the message when it is not a mapping (e.g.
+        ``"name, scene, axes, seeds, methods"``).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise UserError(f"{p}: no such {what}")
+    doc = load_yaml_file(p, what=what)
+    if not isinstance(doc, dict):
+        raise UserError(f"{p}: expected a mapping of {what.removesuffix(' file')} keys ({keys})")
+    return doc
