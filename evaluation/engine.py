@@ -13,12 +13,13 @@ remote cluster the output folder must be on a file system the workers share
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import dataclasses
 import functools
 import multiprocessing
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -257,6 +258,49 @@ def make_executor(workers: int, scheduler: Any) -> Any:
     return _Inline() if workers <= 1 else _Local(workers)
 
 
+@contextlib.contextmanager
+def executing(workers: int, scheduler: Any) -> Iterator[Any]:
+    """:func:`make_executor` for a ``with`` block: aborted when the block is interrupted, else closed."""
+    executor = make_executor(workers, scheduler)
+    try:
+        yield executor
+    except BaseException:
+        executor.abort()
+        raise
+    finally:
+        executor.close()
+
+
+def completed(executor: Any, futures: Iterable, *, desc: str, unit: str, progress: bool,
+              total: int | None = None, initial: int = 0) -> Iterator[Any]:
+    """``executor.as_completed(futures)`` under a tqdm bar on stderr (one step per future).
+
+    Parameters
+    ----------
+    executor : object
+        From :func:`make_executor`.
+    futures : iterable
+        Its futures (a dict's keys, a list).
+    desc, unit : str
+        The bar's label and unit.
+    progress : bool
+        Show the bar.
+    total, initial : int, optional
+        The bar's length (default: the number of futures) and its start (work done before).
+    """
+    from tqdm import tqdm
+
+    futures = list(futures)
+    bar = tqdm(total=len(futures) if total is None else total, initial=initial, desc=desc, unit=unit,
+               disable=not progress, file=sys.stderr)  # fmt: skip
+    try:
+        for fut in executor.as_completed(futures):
+            yield fut
+            bar.update()
+    finally:
+        bar.close()
+
+
 def _result(fut: Any) -> Any:
     return fut.result()
 
@@ -298,8 +342,6 @@ def run_sweep(
     -------
     RunSummary
     """
-    from tqdm import tqdm
-
     t_start = time.perf_counter()
     if (Path(out) / MANIFEST).exists():
         read_manifest(out)  # a damaged sweep.json is a one-line error naming it, before anything runs
@@ -312,48 +354,33 @@ def run_sweep(
     cache = _cache_folder(out, cache_dir)
     cache_dir = str(cache) if cache is not None else None
     renderer = sweep.renderer
-    executor = make_executor(workers, scheduler)
     rendered = failed = 0
     render_errors: dict[str, str] = {}
-    try:
+    with executing(workers, scheduler) as executor:
         keys = list(dict.fromkeys(t.render_key for t in todo)) if renderer.prerender and cache_dir else []
         if keys:
             scenes = {t.render_key: t.scene for t in todo}
             futs = {executor.submit(renderer.prepare, scenes[k], cache_dir=Path(cache_dir)): k for k in keys}
-            bar = tqdm(total=len(keys), desc=f"{sweep.name}: renders", unit="render", disable=not progress, file=sys.stderr)
-            for fut in executor.as_completed(list(futs)):
+            for fut in completed(executor, futs, desc=f"{sweep.name}: renders", unit="render", progress=progress):
                 try:
                     rendered += bool(_result(fut))
                 except Exception as exc:  # the tasks of this configuration become error rows
                     render_errors[futs[fut]] = f"render: {type(exc).__name__}: {' '.join(str(exc).split())}"
-                bar.update()
-            bar.close()
 
-        bar = tqdm(
-            total=len(sweep.tasks), initial=len(sweep.tasks) - len(todo), desc=f"{sweep.name}: tasks",
-            unit="task", disable=not progress, file=sys.stderr,
-        )
         futs = {}
         for t in todo:
             if t.render_key in render_errors:
                 row = task_row(t, {"status": "error", "error": render_errors[t.render_key]}, sweep=sweep, version=version)
                 store.write_row(row)
                 failed += 1
-                bar.update()
                 continue
             futs[executor.submit(run_task, task_payload(t, sweep), renderer=renderer, cache_dir=cache_dir)] = t
-        for fut in executor.as_completed(list(futs)):
+        for fut in completed(executor, futs, desc=f"{sweep.name}: tasks", unit="task", progress=progress,
+                             total=len(sweep.tasks), initial=len(sweep.tasks) - len(futs)):  # fmt: skip
             t = futs[fut]
             row = task_row(t, _result(fut), sweep=sweep, version=version)
             store.write_row(row)
             failed += row["status"] != "ok"
-            bar.update()
-        bar.close()
-    except BaseException:
-        executor.abort()
-        raise
-    finally:
-        executor.close()
     complete = store.consolidate() is not None
     if complete and todo:  # a re-run that ran nothing leaves the record of the run that made the rows
         _record_provenance(sweep, out, command)

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import time
 import traceback
 from collections.abc import Mapping
@@ -187,9 +186,7 @@ def score_suite(
     counts : dict
         ``ran``, ``skipped``, ``failed``.
     """
-    from tqdm import tqdm
-
-    from .engine import make_executor
+    from .engine import completed, executing
     from .environment import code_version
     from .store import ResultStore
 
@@ -211,27 +208,18 @@ def score_suite(
     done = store.done_ids()
     todo = [c for c in manifest["cases"] if c["id"] not in done]
     version = code_version()
-    executor = make_executor(workers, scheduler)
     failed = 0
-    try:
+    with executing(workers, scheduler) as executor:
         futs = {executor.submit(score_case, {"folder": str(suite_dir / c["path"])}, method=method, options=options): c
                 for c in todo}  # fmt: skip
-        bar = tqdm(total=len(manifest["cases"]), initial=len(manifest["cases"]) - len(todo),
-                   desc=f"{manifest['suite']}: {label}", unit="case", disable=not progress, file=sys.stderr)  # fmt: skip
-        for fut in executor.as_completed(list(futs)):
+        for fut in completed(executor, futs, desc=f"{manifest['suite']}: {label}", unit="case", progress=progress,
+                             total=len(manifest["cases"]), initial=len(manifest["cases"]) - len(todo)):  # fmt: skip
             c = futs[fut]
             row = {"task_id": c["id"], "task_index": manifest["cases"].index(c), "sweep": manifest["suite"],
                    **c["categories"], "seed": c["seed"], "noisy": c["noisy"], "method": label,
                    "render_key": c["id"], "renderer": "suite", "code_version": version, **fut.result()}  # fmt: skip
             store.write_row(row)
             failed += row["status"] != "ok"
-            bar.update()
-        bar.close()
-    except BaseException:
-        executor.abort()
-        raise
-    finally:
-        executor.close()
     df = store.consolidate()
     counts = {"ran": len(todo), "skipped": len(manifest["cases"]) - len(todo), "failed": failed}
     if df is None:

@@ -34,7 +34,6 @@ import dataclasses
 import hashlib
 import json
 import math
-import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -448,11 +447,9 @@ def build_suite(
     counts : dict
         ``built``, ``kept`` (already there), ``rendered`` (renders made).
     """
-    from tqdm import tqdm
-
     from ..files.atomic import write_json
     from ..files.jsonable import jsonable
-    from .engine import make_executor, task_payload
+    from .engine import completed, executing, task_payload
 
     out = check_build_out(out, suite)
     out.mkdir(parents=True, exist_ok=True)
@@ -461,34 +458,22 @@ def build_suite(
     renderer = suite.renderer
     cache = None if cache_dir is None else str(cache_dir)
     todo = [c for c in suite.cases if not _case_done(out / c.path)]
-    executor = make_executor(workers, scheduler)
     rendered = 0
     records: dict[str, dict] = {}
-    try:
+    with executing(workers, scheduler) as executor:
         keys = list(dict.fromkeys(c.task.render_key for c in todo)) if renderer.prerender and cache else []
         if keys:
             scenes = {c.task.render_key: c.task.scene for c in todo}
             futs = [executor.submit(renderer.prepare, scenes[k], cache_dir=Path(cache)) for k in keys]
-            bar = tqdm(total=len(keys), desc=f"{suite.name}: renders", unit="render", disable=not progress, file=sys.stderr)
-            for fut in executor.as_completed(futs):
+            for fut in completed(executor, futs, desc=f"{suite.name}: renders", unit="render", progress=progress):
                 rendered += bool(fut.result())
-                bar.update()
-            bar.close()
         for c in todo:  # a case interrupted half-written is written again (nearlight wrote it)
             _remove_partial_case(out / c.path)
         futs = {executor.submit(build_case, task_payload(c.task, c.sweep), renderer=renderer, cache_dir=cache,
                                 folder=str(out / c.path)): c for c in todo}  # fmt: skip
-        bar = tqdm(total=len(suite.cases), initial=len(suite.cases) - len(todo), desc=f"{suite.name}: cases",
-                   unit="case", disable=not progress, file=sys.stderr)  # fmt: skip
-        for fut in executor.as_completed(list(futs)):
+        for fut in completed(executor, futs, desc=f"{suite.name}: cases", unit="case", progress=progress,
+                             total=len(suite.cases), initial=len(suite.cases) - len(todo)):  # fmt: skip
             records[futs[fut].case_id] = fut.result()
-            bar.update()
-        bar.close()
-    except BaseException:
-        executor.abort()
-        raise
-    finally:
-        executor.close()
     for c in suite.cases:
         if c.case_id not in records:
             records[c.case_id] = case_record(out / c.path)
