@@ -22,6 +22,8 @@ from .separation import separate_capture
 from ..physics.camera import camera_rays, project
 from ..physics.reflectance import normalize
 
+#: Default specular mask threshold, fraction of the peak pixel's mean specular (:func:`observe`).
+THRESHOLD = 0.05
 #: Fewest specular pixels the regressions and fits accept.
 MIN_SPECULAR_PIXELS = 10
 #: How far (median over surface pixels) the rays from the camera through ``P``
@@ -247,9 +249,12 @@ def check_rays(capture: Capture) -> None:
 def _check_signal(name: str, channel: str, img: np.ndarray, surface: np.ndarray) -> None:
     """Refuse radiance with no signal at the surface: all <= 0, mostly negative, or constant."""
     vals = img[surface]
-    if vals.size == 0:
-        return
-    hi, lo = float(vals.max()), float(vals.min())
+    if vals.size:
+        _check_extremes(name, channel, float(vals.max()), float(vals.min()))
+
+
+def _check_extremes(name: str, channel: str, hi: float, lo: float) -> None:
+    """:func:`_check_signal` from the largest and smallest radiance at the surface."""
     if hi <= 0:
         raise UserError(f"{name}: channel {channel}: no signal: no surface pixel above 0 (all-zero or negative radiance)")
     if -lo > hi:
@@ -420,13 +425,18 @@ def specular_image(capture: Capture, *, separation: str = "fit") -> np.ndarray:
         spec, channel = np.asarray(capture.specular, dtype=float), "specular"
     elif capture.stack is not None:
         stack = np.asarray(capture.stack)
-        _check_finite(capture.name, "pol<k>", stack.max(axis=0) + stack.min(axis=0), surface)
-        if stack.size:
-            k = int(np.argmin(stack[:, surface].min(axis=(1, 2)))) if surface.any() else 0
-            _check_signal(capture.name, f"pol{k}", stack.transpose(1, 2, 0, 3), surface)
+        # one pass over the stack for every check: its extremes over the angles, per pixel and channel
+        high, low = (stack.max(axis=0), stack.min(axis=0)) if stack.size else (None, None)
+        if high is not None:
+            _check_finite(capture.name, "pol<k>", high + low, surface)
+        hi, lo = (float(high[surface].max()), float(low[surface].min())) if high is not None and surface.any() \
+            else (None, None)
+        if hi is not None and (hi <= 0 or -lo > hi):
+            k = int(np.argmin(stack[:, surface].min(axis=(1, 2))))  # the image to name (only when refusing)
+            _check_extremes(capture.name, f"pol{k}", hi, lo)
         spec, channel = separate_capture(capture, method=separation)[0], "pol<k>"
-        if surface.any() and np.all(np.isfinite(spec[surface])):
-            top = float(np.abs(stack[:, surface]).max())
+        if hi is not None and np.all(np.isfinite(spec[surface])):
+            top = max(hi, -lo)  # the largest |stack| at the surface
             if float(np.abs(spec[surface]).max()) <= 1e-6 * top:
                 raise UserError(
                     f"{capture.name}: channels pol<k>: no polarization signal: the analyzer images do not change "
@@ -491,7 +501,7 @@ def _peak_pixel(lum: np.ndarray, usable: np.ndarray) -> tuple[int, int]:
     return int(rows[k]), int(cols[k])
 
 
-def observe(capture: Capture, *, separation: str = "fit", threshold: float = 0.05) -> Observation:
+def observe(capture: Capture, *, separation: str = "fit", threshold: float = THRESHOLD) -> Observation:
     """Reduce a capture to an :class:`Observation`.
 
     Parameters
