@@ -162,6 +162,8 @@ class PointLampModel:
         return np.where(den > 0, np.sum(fw * self.observed, axis=0) / np.where(den > 0, den, 1.0), x[3:6])
 
 
+#: About how many pixels the multi-start's short fits use (every k-th of the fitted pixels).
+TRIAL_PIXELS = 500
 #: About how many specular pixels the start's t search and regressions use (:func:`start_observation`).
 START_PIXELS = 2000
 
@@ -343,7 +345,8 @@ def full_estimate(
         return robust_fit(m.residuals, np.clip(x0, lower, upper), typical=typical(x0), lower=lower,
                           upper=upper, loss="linear", f_scale=1.0, jac=m.jacobian, max_nfev=30)
 
-    trials = [short_fit(coarse, x0) for x0 in _starts(init, start, n_starts=int(n_starts))]
+    trial = model.subset(slice(None, None, max(1, len(model.P) // TRIAL_PIXELS)))
+    trials = [short_fit(trial, x0) for x0 in _starts(init, start, n_starts=int(n_starts))]
     best = min(trials, key=lambda r: r["cost"])["x"]
     # the loss stays quadratic within a noise-free capture's float rounding: 1e-4 of the peak
     # unweighted, one standard deviation weighted (whose floor is that same 1e-4 of the peak)
