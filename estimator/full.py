@@ -3,7 +3,8 @@
 The paper's first stage puts the lamp on the ray from the peak pixel along
 the mirror direction, but the peak pixel is not the mirror point: the
 ``1/cos θr`` and ``1/r²`` factors move the intensity peak away from α = 0,
-and pixels quantise it. So ``full`` starts from ``paper-init`` and fits the
+and pixels quantise it. So ``full`` starts from the paper's first stage
+(``paper-init``'s, on a lattice of the specular pixels: :func:`start_observation`) and fits the
 closed-form specular radiance of docs/physics.md, ``I_s = colour · F / r²``
 (``I_lamp = 1``: the colour absorbs the lamp intensity), with ``F`` the lobe
 of one family (:mod:`~nearlight.estimator.lobes`: the paper's
@@ -124,7 +125,7 @@ class PointLampModel:
         return self._weigh(f[:, None] * x[3:6] - self.observed).ravel()
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
-        """Analytic ``∂ residuals / ∂ x``, shape ``(n · 3, 7)``.
+        """Analytic ``∂ residuals / ∂ x``, shape ``(n · 3, 7)`` (Fortran-ordered).
 
         With ``h = (l + v)/|l + v|``, ``c = N·h``: ``∂r/∂L = l``,
         ``∂c/∂L = (I − l lᵀ)(I − h hᵀ) N / (|l + v| r)``,
@@ -139,19 +140,22 @@ class PointLampModel:
         s = g.light + g.view
         inv_s = 1.0 / np.sqrt(np.einsum("ij,ij->i", s, s))
         h = s * inv_s[:, None]
-        w = (self.N - np.einsum("ij,ij->i", self.N, h)[:, None] * h) * inv_s[:, None]
-        inv_r = (1.0 / g.r)[:, None]
-        u = (w - np.einsum("ij,ij->i", w, g.light)[:, None] * g.light) * inv_r
-        dci = (self.N - g.cos_i[:, None] * g.light) * inv_r
-        df_dL = f[:, None] * (d_c[:, None] * u + d_i[:, None] * dci - 2.0 * g.light * inv_r)
-        n = len(f)
-        J = np.zeros((n, 3, 7))
-        J[:, :, :3] = x[3:6][None, :, None] * df_dL[:, None, :]
-        J[:, [0, 1, 2], [3, 4, 5]] = f[:, None]
-        J[:, :, 6] = x[3:6][None, :] * (f * d_a)[:, None]
+        w = (self.N - np.einsum("ij,ij->i", self.N, h)[:, None] * h) * inv_s[:, None]  # ∂c/∂L = (w − (w·l) l) / r
+        # ∂f/∂L = f/r · (d_c w + d_i N − (d_c w·l + d_i cos θi + 2) l)
+        along = d_c * np.einsum("ij,ij->i", w, g.light) + d_i * g.cos_i + 2.0
+        df_dL = (f / g.r)[:, None] * (d_c[:, None] * w + d_i[:, None] * self.N - along[:, None] * g.light)
+        # built parameter-major, (7, n, 3), and returned as its Fortran-ordered transpose: contiguous writes
+        # here, and the layout the solver's SVD (LAPACK) takes without a copy
+        ks = x[3:6]
+        J = np.empty((7, len(f), 3))
+        np.multiply(df_dL.T[:, :, None], ks, out=J[:3])
+        J[3:6] = 0.0
+        for m in range(3):
+            J[3 + m, :, m] = f
+        np.multiply((f * d_a)[:, None], ks, out=J[6])
         if self._inv is not None:
-            J *= self._inv[:, :, None]
-        return J.reshape(n * 3, 7)
+            J *= self._inv
+        return J.reshape(7, -1).T
 
     def linear_ks(self, x: np.ndarray) -> np.ndarray:
         """The (weighted) least-squares colour for ``x``'s lamp and roughness: ``Ks = Σ f o / Σ f²`` per channel."""
@@ -178,8 +182,7 @@ def start_observation(obs: Observation, n_pixels: int = START_PIXELS) -> Observa
     (:func:`~nearlight.estimator.paper.ray_stage`, :func:`_starts`) on the
     lattice cost ``1/step²`` of the whole mask's; the start only has to land
     in the minimum's basin, which the multi-start and the short fits then
-    settle (measured at 640×480: the same lamp to 1e-9 of the
-    camera–highlight distance on the analytic board and sphere).
+    settle (see :func:`full_estimate`'s "Speed").
 
     Parameters
     ----------
@@ -202,7 +205,7 @@ def start_observation(obs: Observation, n_pixels: int = START_PIXELS) -> Observa
 
 
 def _starts(init: Estimate, obs: Observation, *, n_starts: int) -> list[np.ndarray]:
-    """Starting points: ``paper-init`` and points on its ray at log-spaced distances.
+    """Starting points: the first stage's and points on its peak ray at log-spaced distances.
 
     The peak ray's t is poorly determined (E_p(t) is flat when the ray misses
     the lamp by a degree or two), so the fit also starts from ``n_starts``
@@ -254,9 +257,20 @@ def full_estimate(
     lower-cost start wins and the answer can flip between them; no shipped
     scene has shown one.
 
+    Speed (issue 14; ``benchmarks/bench_estimator.py``): the start is the
+    first stage on a lattice of ~:data:`START_PIXELS` specular pixels rather
+    than on all of them (~53 000 on the 640×480 board), the multi-start's
+    short fits run on ~:data:`TRIAL_PIXELS` of the fitted pixels, and the
+    model evaluates its geometry once per parameter vector for the
+    residuals and the Jacobian. Only the final fit sees every fitted pixel
+    (``max_pixels``), as before; it lands on the same minimum as the
+    whole-mask start did (analytic 640×480 board and sphere: the lamp
+    within 1e-14 m, σ within 1e-14 relative; 160×120 with camera noise:
+    within 1e-9 m).
+
     The lobe family (``lobe``): one named, or ``auto``: every family of
     :data:`~nearlight.estimator.lobes.FAMILIES` is fitted from the same
-    start on the short fits' pixel subset (at most ~2000); every family
+    start on every k-th of the fitted pixels (at most ~2000); every family
     within :data:`REFIT_EVIDENCE` of the best there is fitted on every pixel,
     and the one with the smallest weighted sum of squares wins (all have
     seven parameters, so this is the Akaike and the Bayesian information
@@ -306,9 +320,11 @@ def full_estimate(
     n_starts : int
         Extra starting distances along the peak ray (see :func:`_starts`);
         the start with the lowest least-squares cost after a short fit (on
-        at most ~2000 pixels) wins.
+        at most ~:data:`TRIAL_PIXELS` of the fitted pixels) wins.
     **init_options
-        Options of :func:`~nearlight.estimator.paper.stage_one`.
+        Options of :func:`~nearlight.estimator.paper.stage_one`: ``threshold``
+        for the observation, the others for its ray stage, which runs on
+        the lattice of :func:`start_observation`.
 
     Returns
     -------
