@@ -72,14 +72,17 @@ def main() -> None:
             print(f"{name:8} {method:11} {secs:8.3f} {err:9.2e} {est.sigma:7.4f}")
         # full's stages, and a named lobe against automatic choice (issue 14's speed goal: a named
         # lobe ≤ 0.3 s per 640×480 capture on one core, automatic choice ≤ 2× that)
+        named = None
         for lobe in ("torrance_sparrow", "auto"):
             secs, est = best_of(lambda: estimate(cap, method="full", lobe=lobe), args.repeat)
             stages = ", ".join(f"{k} {v:.3f}" for k, v in est.timings.items())
             goal = GOAL * (2 if lobe == "auto" else 1)
             before = BEFORE.get(name, {}).get(lobe)
             ratio = f"; {before / secs:.1f}x faster than {before:.3f} s at e8b09ea" if before else ""
+            of_named = f", {secs / named:.2f}x the named lobe's (goal <= 2)" if named else ""
             print(f"{name:8} full lobe={lobe:16} {secs:.3f} s ({stages}; chose {est.stages['full']['lobe']}){ratio}; "
-                  f"goal <= {goal:.1f} s {'met' if secs <= goal else 'NOT met'}")
+                  f"goal <= {goal:.1f} s {'met' if secs <= goal else 'NOT met'}{of_named}")
+            named = secs
         obs = observe(cap)
         t_max, dt = t_search_defaults(obs, None, None)
         ray = RaySearch(obs)
