@@ -335,6 +335,9 @@ def full_estimate(
         own BSDF dict in ``stages["full"]["bsdf"]``. ``covariance``: 1-σ
         covariance of ``(x, y, z, σ)``; ``stages["full"]`` holds the 7 × 7
         covariance of ``(x, y, z, colour_r, colour_g, colour_b, roughness)``.
+        ``diagnostics``: the start's (:func:`~nearlight.estimator.paper.ray_stage`
+        on the lattice), with ``n_specular_pixels`` the whole mask's count and
+        ``n_start_pixels`` the lattice's.
     """
     if loss not in LOSSES:
         raise UserError(f"option loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
@@ -412,6 +415,7 @@ def full_estimate(
         sigma=k * x[6],
         covariance=cov4,
         stages={"init": init.stages["init"], "full": stage},
-        diagnostics=init.diagnostics,
+        diagnostics={**init.diagnostics, "n_specular_pixels": int(obs.mask.sum()),
+                     "n_start_pixels": int(start.mask.sum())},
         timings=timings,
     )
