@@ -8,11 +8,14 @@ paper's first stage with the plain per-step scan of the same E_p(t)
 20×) and whether both return the same t to within Δt. Printed, not asserted:
 the machine is shared. Also prints each method's lamp error (fraction of the
 highlight–lamp distance), and ``full``'s per-stage seconds with a named lobe
-and with automatic lobe choice.
+and with automatic lobe choice, against issue 14's goal (a named lobe ≤ 0.3 s per
+640×480 capture on one core, automatic choice ≤ 2× that) and as a ratio to
+``full``'s seconds before that work (:data:`BEFORE`; at other resolutions the
+ratio compares unlike captures). Run it on one core: ``OMP_NUM_THREADS=1``.
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_estimator.py
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_estimator.py --repeat 2
     .venv/bin/python benchmarks/bench_estimator.py --resolution 320 240 --repeat 1
 """
 
@@ -33,6 +36,12 @@ SCENES = {
     "sphere": {"shape": "sphere", "lamp_position": (0.1, 0.1, 0.6),
                "bsdf": {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.06}},
 }
+
+#: ``full``'s seconds per 640×480 capture, measured at e8b09ea on the development machine (one run,
+#: one core, shared), before issue 14's speed work: scene -> lobe -> seconds.
+BEFORE = {"board": {"torrance_sparrow": 2.619, "auto": 3.012}, "sphere": {"torrance_sparrow": 1.322}}
+#: Issue 14's goal for a named lobe, seconds per 640×480 capture on one core; ``auto``: twice that.
+GOAL = 0.3
 
 
 def best_of(fn, repeat: int) -> tuple[float, object]:
@@ -63,10 +72,17 @@ def main() -> None:
             print(f"{name:8} {method:11} {secs:8.3f} {err:9.2e} {est.sigma:7.4f}")
         # full's stages, and a named lobe against automatic choice (issue 14's speed goal: a named
         # lobe ≤ 0.3 s per 640×480 capture on one core, automatic choice ≤ 2× that)
+        named = None
         for lobe in ("torrance_sparrow", "auto"):
             secs, est = best_of(lambda: estimate(cap, method="full", lobe=lobe), args.repeat)
             stages = ", ".join(f"{k} {v:.3f}" for k, v in est.timings.items())
-            print(f"{name:8} full lobe={lobe:16} {secs:.3f} s ({stages}; chose {est.stages['full']['lobe']})")
+            goal = GOAL * (2 if lobe == "auto" else 1)
+            before = BEFORE.get(name, {}).get(lobe)
+            ratio = f"; {before / secs:.1f}x faster than {before:.3f} s at e8b09ea" if before else ""
+            of_named = f", {secs / named:.2f}x the named lobe's (goal <= 2)" if named else ""
+            print(f"{name:8} full lobe={lobe:16} {secs:.3f} s ({stages}; chose {est.stages['full']['lobe']}){ratio}; "
+                  f"goal <= {goal:.1f} s {'met' if secs <= goal else 'NOT met'}{of_named}")
+            named = secs
         obs = observe(cap)
         t_max, dt = t_search_defaults(obs, None, None)
         ray = RaySearch(obs)

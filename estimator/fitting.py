@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 import numpy as np
 from scipy.optimize import least_squares
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from ..errors import UserError
 
@@ -78,8 +79,23 @@ def robust_fit(*args, **kwargs) -> dict:
     on a machine whose cores are busy, OpenBLAS's spinning threads made each
     SVD 20–40 times slower (measured: 46 ms vs 0.9 ms for 5400 × 7).
     """
-    with threadpool_limits(limits=1, user_api="blas"):
+    with single_threaded_blas():
         return _robust_fit(*args, **kwargs)
+
+
+def single_threaded_blas():
+    """Context manager: the BLAS libraries numpy and scipy loaded, limited to one thread.
+
+    The libraries are found once (:func:`_blas`): a fresh scan,
+    ``threadpoolctl.threadpool_limits``, costs ~1.5 ms, and ``full`` enters
+    this ten times or more per capture.
+    """
+    return _blas().limit(limits=1, user_api="blas")
+
+
+@functools.cache
+def _blas() -> ThreadpoolController:
+    return ThreadpoolController()
 
 
 def _robust_fit(

@@ -3,7 +3,8 @@
 The paper's first stage puts the lamp on the ray from the peak pixel along
 the mirror direction, but the peak pixel is not the mirror point: the
 ``1/cos θr`` and ``1/r²`` factors move the intensity peak away from α = 0,
-and pixels quantise it. So ``full`` starts from ``paper-init`` and fits the
+and pixels quantise it. So ``full`` starts from the paper's first stage
+(``paper-init``'s, on a lattice of the specular pixels: :func:`start_observation`) and fits the
 closed-form specular radiance of docs/physics.md, ``I_s = colour · F / r²``
 (``I_lamp = 1``: the colour absorbs the lamp intensity), with ``F`` the lobe
 of one family (:mod:`~nearlight.estimator.lobes`: the paper's
@@ -21,6 +22,7 @@ ray begins at the hole's filled point
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Annotated
 
@@ -30,15 +32,15 @@ from pydantic import AfterValidator
 from ..capture import Capture
 from ..errors import UserError
 from .fitting import log_regression, robust_fit
-from .lobes import FAMILIES, radiance_and_log_derivatives
+from .lobes import FAMILIES, log_derivatives, radiance
 from .noise import camera_noise, specular_variance
-from .observation import Observation
+from .observation import THRESHOLD, Observation, observe
 from .options import Choice, Count, CountOrZero, Positive, forwards
-from .paper import RaySearch, stage_one
+from .paper import RaySearch, ray_stage, stage_one
 from .separation import SEPARATION_METHODS
 from .pixels import fit_pixels
 from .result import Estimate
-from ..physics.reflectance import LOBES, peak_shape, roughness_for_ts_sigma, shading_geometry, ts_sigma
+from ..physics.reflectance import LOBES, normalize, peak_shape, roughness_for_ts_sigma, shading_geometry, ts_sigma
 
 LOSSES = ("huber", "soft_l1", "linear", "cauchy", "arctan")
 
@@ -87,6 +89,8 @@ class PointLampModel:
         self.P, self.N, self.camera, self.observed, self.lobe = P, N, camera, observed, lobe
         self.std = std
         self._inv = None if std is None else 1.0 / std
+        self.view = normalize(np.asarray(camera, dtype=float) - P)  # the lamp moves, the camera does not
+        self._at: tuple[np.ndarray, tuple] | None = None
 
     def subset(self, rows: slice | np.ndarray) -> PointLampModel:
         """The same model on some of its pixels."""
@@ -97,26 +101,31 @@ class PointLampModel:
         """The same pixels and weights with another lobe family."""
         return PointLampModel(self.P, self.N, self.camera, self.observed, lobe=lobe, std=self.std)
 
-    def _lobe(self, x: np.ndarray, derivatives: bool = False) -> tuple:
-        """``f = F / r²`` where lit (else 0), shape (n,), the geometry and, if asked, F's log-derivatives."""
-        g = shading_geometry(self.P, self.N, self.camera, x[:3])
+    def _lobe(self, x: np.ndarray) -> tuple:
+        """``f = F / r²`` where lit (else 0), shape (n,), the geometry and where lit, at ``x``.
+
+        The last ``x``'s are kept: the solver asks for the residuals and then
+        the Jacobian at the same point, which share them.
+        """
+        if self._at is not None and np.array_equal(self._at[0], x):
+            return self._at[1]
+        g = shading_geometry(self.P, self.N, self.camera, x[:3], view=self.view)
         lit = (g.cos_i > 0) & (g.cos_r > 0)
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            F, *logd = radiance_and_log_derivatives(self.lobe, g.cos_i, g.cos_r, g.alpha, x[6])
+            F = radiance(self.lobe, g.cos_i, g.cos_r, g.alpha, x[6])
             f = np.where(lit, np.nan_to_num(F / g.r**2), 0.0)
-        if not derivatives:
-            return f, g
-        return f, g, [np.where(lit, np.nan_to_num(d), 0.0) for d in logd]
+        self._at = (np.array(x, dtype=float), (f, g, lit))
+        return f, g, lit
 
     def _weigh(self, r: np.ndarray) -> np.ndarray:
         return r if self._inv is None else r * self._inv
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
-        f, _ = self._lobe(x)
+        f = self._lobe(x)[0]
         return self._weigh(f[:, None] * x[3:6] - self.observed).ravel()
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
-        """Analytic ``∂ residuals / ∂ x``, shape ``(n · 3, 7)``.
+        """Analytic ``∂ residuals / ∂ x``, shape ``(n · 3, 7)`` (Fortran-ordered).
 
         With ``h = (l + v)/|l + v|``, ``c = N·h``: ``∂r/∂L = l``,
         ``∂c/∂L = (I − l lᵀ)(I − h hᵀ) N / (|l + v| r)``,
@@ -124,34 +133,79 @@ class PointLampModel:
         ``∂f/∂L = f (∂ln F/∂c · ∂c/∂L + ∂ln F/∂cos θi · ∂cos θi/∂L − 2 l / r)``
         and ``∂f/∂a = f ∂ln F/∂a`` (:mod:`~nearlight.estimator.lobes`).
         """
-        f, g, (d_c, d_i, d_a) = self._lobe(x, derivatives=True)
+        f, g, lit = self._lobe(x)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            d_c, d_i, d_a = (np.where(lit, np.nan_to_num(d), 0.0)
+                             for d in log_derivatives(self.lobe, g.cos_i, g.cos_r, g.alpha, x[6]))
         s = g.light + g.view
-        norm_s = np.linalg.norm(s, axis=-1)
-        h = s / norm_s[:, None]
-        w = (self.N - np.sum(self.N * h, axis=-1, keepdims=True) * h) / norm_s[:, None]
-        u = (w - np.sum(w * g.light, axis=-1, keepdims=True) * g.light) / g.r[:, None]
-        dci = (self.N - g.cos_i[:, None] * g.light) / g.r[:, None]
-        df_dL = f[:, None] * (d_c[:, None] * u + d_i[:, None] * dci - 2.0 * g.light / g.r[:, None])
-        n = len(f)
-        J = np.zeros((n, 3, 7))
-        J[:, :, :3] = x[3:6][None, :, None] * df_dL[:, None, :]
-        J[:, [0, 1, 2], [3, 4, 5]] = f[:, None]
-        J[:, :, 6] = x[3:6][None, :] * (f * d_a)[:, None]
+        inv_s = 1.0 / np.sqrt(np.einsum("ij,ij->i", s, s))
+        h = s * inv_s[:, None]
+        w = (self.N - np.einsum("ij,ij->i", self.N, h)[:, None] * h) * inv_s[:, None]  # ∂c/∂L = (w − (w·l) l) / r
+        # ∂f/∂L = f/r · (d_c w + d_i N − (d_c w·l + d_i cos θi + 2) l)
+        along = d_c * np.einsum("ij,ij->i", w, g.light) + d_i * g.cos_i + 2.0
+        df_dL = (f / g.r)[:, None] * (d_c[:, None] * w + d_i[:, None] * self.N - along[:, None] * g.light)
+        # built parameter-major, (7, n, 3), and returned as its Fortran-ordered transpose: contiguous writes
+        # here, and the layout the solver's SVD (LAPACK) takes without a copy
+        ks = x[3:6]
+        J = np.empty((7, len(f), 3))
+        np.multiply(df_dL.T[:, :, None], ks, out=J[:3])
+        J[3:6] = 0.0
+        for m in range(3):
+            J[3 + m, :, m] = f
+        np.multiply((f * d_a)[:, None], ks, out=J[6])
         if self._inv is not None:
-            J *= self._inv[:, :, None]
-        return J.reshape(n * 3, 7)
+            J *= self._inv
+        return J.reshape(7, -1).T
 
     def linear_ks(self, x: np.ndarray) -> np.ndarray:
         """The (weighted) least-squares colour for ``x``'s lamp and roughness: ``Ks = Σ f o / Σ f²`` per channel."""
-        f, _ = self._lobe(x)
+        f = self._lobe(x)[0]
         wt = np.ones_like(self.observed) if self._inv is None else self._inv**2
         fw = f[:, None] * wt
         den = np.sum(fw * f[:, None], axis=0)
         return np.where(den > 0, np.sum(fw * self.observed, axis=0) / np.where(den > 0, den, 1.0), x[3:6])
 
 
+#: About how many pixels the multi-start's short fits use (every k-th of the fitted pixels).
+TRIAL_PIXELS = 500
+#: About how many specular pixels the start's t search and regressions use (:func:`start_observation`).
+START_PIXELS = 2000
+
+
+def start_observation(obs: Observation, n_pixels: int = START_PIXELS) -> Observation:
+    """``obs`` with its specular mask thinned to a square lattice of about ``n_pixels`` pixels, for the start.
+
+    The lattice's step is ``⌊√(n_mask / n_pixels)⌋`` pixels (1: the mask as
+    it is) and it passes through the peak pixel, so the thinned mask does not
+    depend on the order of the pixels and moves with the image only where
+    the mask's own edge moves. The start's E_p(t) and regressions
+    (:func:`~nearlight.estimator.paper.ray_stage`, :func:`_starts`) on the
+    lattice cost ``1/step²`` of the whole mask's; the start only has to land
+    in the minimum's basin, which the multi-start and the short fits then
+    settle (see :func:`full_estimate`'s "Speed").
+
+    Parameters
+    ----------
+    obs : Observation
+    n_pixels : int
+        Target count; a mask of fewer than ``4 · n_pixels`` pixels is kept whole.
+
+    Returns
+    -------
+    Observation
+        A copy sharing ``obs``'s arrays but ``mask``, shape (H, W).
+    """
+    step = int(np.sqrt(int(obs.mask.sum()) / n_pixels))
+    if step <= 1:
+        return obs
+    i, j = obs.peak
+    lattice = np.zeros_like(obs.mask)
+    lattice[i % step::step, j % step::step] = True
+    return dataclasses.replace(obs, mask=obs.mask & lattice)
+
+
 def _starts(init: Estimate, obs: Observation, *, n_starts: int) -> list[np.ndarray]:
-    """Starting points: ``paper-init`` and points on its ray at log-spaced distances.
+    """Starting points: the first stage's and points on its peak ray at log-spaced distances.
 
     The peak ray's t is poorly determined (E_p(t) is flat when the ray misses
     the lamp by a degree or two), so the fit also starts from ``n_starts``
@@ -203,9 +257,20 @@ def full_estimate(
     lower-cost start wins and the answer can flip between them; no shipped
     scene has shown one.
 
+    Speed (issue 14; ``benchmarks/bench_estimator.py``): the start is the
+    first stage on a lattice of ~:data:`START_PIXELS` specular pixels rather
+    than on all of them (~53 000 on the 640×480 board), the multi-start's
+    short fits run on ~:data:`TRIAL_PIXELS` of the fitted pixels, and the
+    model evaluates its geometry once per parameter vector for the
+    residuals and the Jacobian. Only the final fit sees every fitted pixel
+    (``max_pixels``), as before; it lands on the same minimum as the
+    whole-mask start did (analytic 640×480 board and sphere: the lamp
+    within 1e-14 m, σ within 1e-14 relative; 160×120 with camera noise:
+    within 1e-9 m).
+
     The lobe family (``lobe``): one named, or ``auto``: every family of
     :data:`~nearlight.estimator.lobes.FAMILIES` is fitted from the same
-    start on the short fits' pixel subset (at most ~2000); every family
+    start on every k-th of the fitted pixels (at most ~2000); every family
     within :data:`REFIT_EVIDENCE` of the best there is fitted on every pixel,
     and the one with the smallest weighted sum of squares wins (all have
     seven parameters, so this is the Akaike and the Bayesian information
@@ -266,9 +331,11 @@ def full_estimate(
     n_starts : int
         Extra starting distances along the peak ray (see :func:`_starts`);
         the start with the lowest least-squares cost after a short fit (on
-        at most ~2000 pixels) wins.
+        at most ~:data:`TRIAL_PIXELS` of the fitted pixels) wins.
     **init_options
-        Options of :func:`~nearlight.estimator.paper.stage_one`.
+        Options of :func:`~nearlight.estimator.paper.stage_one`: ``threshold``
+        for the observation, the others for its ray stage, which runs on
+        the lattice of :func:`start_observation`.
 
     Returns
     -------
@@ -279,10 +346,18 @@ def full_estimate(
         own BSDF dict in ``stages["full"]["bsdf"]``. ``covariance``: 1-σ
         covariance of ``(x, y, z, σ)``; ``stages["full"]`` holds the 7 × 7
         covariance of ``(x, y, z, colour_r, colour_g, colour_b, roughness)``.
+        ``diagnostics``: the start's (:func:`~nearlight.estimator.paper.ray_stage`
+        on the lattice), with ``n_specular_pixels`` the whole mask's count and
+        ``n_start_pixels`` the lattice's.
     """
     if loss not in LOSSES:
         raise UserError(f"option loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
-    init, obs = stage_one(capture, strict_t_max=False, separation=separation, **init_options)
+    clock = time.perf_counter()
+    obs = observe(capture, separation=separation, threshold=init_options.pop("threshold", THRESHOLD))
+    seconds = time.perf_counter() - clock
+    start = start_observation(obs)
+    init = ray_stage(capture, start, strict_t_max=False, **init_options)
+    init.timings = {"observe": seconds, **init.timings}
     clock = time.perf_counter()
     use = fit_pixels(obs, max_pixels=int(max_pixels), saturation=saturation)
     camera = camera_noise(capture, surface=obs.surface) if noise == "auto" else None
@@ -300,7 +375,8 @@ def full_estimate(
         return robust_fit(m.residuals, np.clip(x0, lower, upper), typical=typical(x0), lower=lower,
                           upper=upper, loss="linear", f_scale=1.0, jac=m.jacobian, max_nfev=30)
 
-    trials = [short_fit(coarse, x0) for x0 in _starts(init, obs, n_starts=int(n_starts))]
+    trial = model.subset(slice(None, None, max(1, len(model.P) // TRIAL_PIXELS)))
+    trials = [short_fit(trial, x0) for x0 in _starts(init, start, n_starts=int(n_starts))]
     best = min(trials, key=lambda r: r["cost"])["x"]
     # the loss stays quadratic within a noise-free capture's float rounding: 1e-4 of the peak
     # unweighted, one standard deviation weighted (whose floor is that same 1e-4 of the peak)
@@ -354,6 +430,7 @@ def full_estimate(
         sigma=per_roughness * x[6],
         covariance=cov4,
         stages={"init": init.stages["init"], "full": stage},
-        diagnostics=init.diagnostics,
+        diagnostics={**init.diagnostics, "n_specular_pixels": int(obs.mask.sum()),
+                     "n_start_pixels": int(start.mask.sum())},
         timings=timings,
     )

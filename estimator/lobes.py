@@ -76,17 +76,29 @@ def radiance_and_log_derivatives(
     -------
     F, dlnF_dc, dlnF_dcos_i, dlnF_da : ndarray, shape (n,)
     """
-    F = brdf_shape(model, cos_i, cos_r, alpha, roughness) * cos_i
+    return (radiance(model, cos_i, cos_r, alpha, roughness),
+            *log_derivatives(model, cos_i, cos_r, alpha, roughness))
+
+
+def radiance(model: str, cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, roughness: float) -> np.ndarray:
+    """``F = shape · cos θi`` per unit colour and lamp intensity (times ``1/r²``: the radiance), shape (n,)."""
+    return brdf_shape(model, cos_i, cos_r, alpha, roughness) * cos_i
+
+
+def log_derivatives(
+    model: str, cos_i: np.ndarray, cos_r: np.ndarray, alpha: np.ndarray, roughness: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``∂ ln F / ∂c``, ``∂ ln F / ∂ cos θi`` and ``∂ ln F / ∂a`` (:func:`radiance_and_log_derivatives`), shape (n,)."""
     a = roughness
-    c = np.cos(alpha)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        tau = np.clip(1.0 - c * c, 0.0, None) / (c * c)
         if model == "torrance_sparrow":
             sin_a = np.sin(alpha)
             ratio = np.where(sin_a > 1e-12, alpha / np.where(sin_a > 1e-12, sin_a, 1.0), 1.0)
-            return F, ratio / a**2, np.zeros_like(F), alpha**2 / a**3
+            return ratio / a**2, np.zeros_like(alpha), alpha**2 / a**3
+        c = np.cos(alpha)
+        tau = np.clip(1.0 - c * c, 0.0, None) / (c * c)
         if model == "ward":
-            return F, 2.0 / (a * a * c**3), 0.5 / cos_i, np.full_like(F, -2.0 / a) + 2.0 * tau / a**3
+            return 2.0 / (a * a * c**3), 0.5 / cos_i, np.full_like(alpha, -2.0 / a) + 2.0 * tau / a**3
         if model == "beckmann":
             d_c, d_a = 2.0 / (a * a * c**3) - 4.0 / c, 2.0 * tau / a**3 - 2.0 / a
         else:  # ggx
@@ -94,4 +106,4 @@ def radiance_and_log_derivatives(
             d_c, d_a = -4.0 * (a * a - 1.0) * c / q, 2.0 / a - 4.0 * a * c * c / q
         gi_c, gi_a = _smith_log_derivatives(cos_i, a, model)
         _, gr_a = _smith_log_derivatives(cos_r, a, model)
-        return F, d_c, gi_c, d_a + gi_a + gr_a
+        return d_c, gi_c, d_a + gi_a + gr_a

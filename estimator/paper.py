@@ -87,7 +87,7 @@ from threadpoolctl import threadpool_limits
 from ..capture import Capture
 from ..errors import UserError
 from .fitting import log_regression
-from .observation import Observation, observe, subpixel_peak, surface_at
+from .observation import THRESHOLD, Observation, observe, subpixel_peak, surface_at
 from .options import Choice, Count, Fraction, Positive, forwards
 from .separation import SEPARATION_METHODS
 from .result import Estimate
@@ -338,7 +338,7 @@ def stage_one(
     capture: Capture,
     *,
     separation: Choice(SEPARATION_METHODS) = "fit",
-    threshold: Fraction = 0.05,
+    threshold: Fraction = THRESHOLD,
     t_max: Positive | None = None,
     dt: Positive | None = None,
     search: Choice(SEARCHES) = "fast",
@@ -389,8 +389,34 @@ def stage_one(
     """
     clock = time.perf_counter()
     obs = observe(capture, separation=separation, threshold=threshold)
+    seconds = time.perf_counter() - clock
+    init = ray_stage(capture, obs, t_max=t_max, dt=dt, search=search, n_coarse=n_coarse, strict_t_max=strict_t_max,
+                     origin=origin, origin_shift=origin_shift)
+    init.timings = {"observe": seconds, **init.timings}
+    return init, obs
+
+
+def ray_stage(
+    capture: Capture,
+    obs: Observation,
+    *,
+    t_max: float | None = None,
+    dt: float | None = None,
+    search: str = "fast",
+    n_coarse: int = 48,
+    strict_t_max: bool = True,
+    origin: str = "peak",
+    origin_shift: float = 0.0,
+) -> Estimate:
+    """:func:`stage_one` after :func:`~nearlight.estimator.observation.observe`: the ray, its t search and the regression.
+
+    E_p and the regression run over ``obs.mask``'s pixels (``full`` passes
+    an observation whose mask is thinned, :func:`~nearlight.estimator.full.start_observation`).
+    Options and errors as :func:`stage_one`; ``timings`` holds ``t_search``
+    and ``regression`` (seconds).
+    """
     t_max, dt = t_search_defaults(obs, t_max, dt)
-    timings = {"observe": time.perf_counter() - clock}
+    timings = {}
     clock = time.perf_counter()
     if search not in SEARCHES:
         raise UserError(f"option search: expected one of {', '.join(SEARCHES)}, got {search!r}")
@@ -444,7 +470,7 @@ def stage_one(
             **extra,
         },
         timings=timings,
-    ), obs
+    )
 
 
 

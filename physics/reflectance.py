@@ -64,7 +64,8 @@ class Geometry(NamedTuple):
     alpha: np.ndarray
 
 
-def shading_geometry(P: np.ndarray, N: np.ndarray, camera_position: np.ndarray, lamp_position: np.ndarray) -> Geometry:
+def shading_geometry(P: np.ndarray, N: np.ndarray, camera_position: np.ndarray, lamp_position: np.ndarray, *,
+                     view: np.ndarray | None = None) -> Geometry:
     """Angles and distances for a near point lamp and a perspective camera.
 
     Parameters
@@ -75,6 +76,9 @@ def shading_geometry(P: np.ndarray, N: np.ndarray, camera_position: np.ndarray, 
         Unit normals at ``P``.
     camera_position, lamp_position : ndarray, shape (3,) or broadcastable to P
         Centre of projection and lamp position, metres.
+    view : ndarray, shape (..., 3), optional
+        ``normalize(camera_position − P)`` when the caller has it already (a
+        fit that moves only the lamp); the same numbers either way.
 
     Returns
     -------
@@ -85,7 +89,7 @@ def shading_geometry(P: np.ndarray, N: np.ndarray, camera_position: np.ndarray, 
     to_light = np.asarray(lamp_position, dtype=float) - P
     r = np.linalg.norm(to_light, axis=-1)
     light = to_light / r[..., None]
-    view = normalize(np.asarray(camera_position, dtype=float) - P)
+    view = normalize(np.asarray(camera_position, dtype=float) - P) if view is None else view
     half = normalize(light + view)
     cos_r = np.sum(N * view, axis=-1)
     cos_i = np.sum(N * light, axis=-1)

@@ -120,3 +120,18 @@ def test_distant_baseline_is_worse_than_full_on_a_near_scene():
     # reproduce a near lamp's highlight at all (measured rmse 0.77).
     assert rmse["full"] < 1e-4 * obs.max()
     assert rmse["distant"] > 100 * rmse["full"]
+
+
+def test_start_observation_thins_the_mask_to_a_lattice_through_the_peak():
+    from nearlight.estimator.full import start_observation
+    from nearlight.estimator.observation import observe
+
+    obs = observe(analytic_capture(width=160, height=120, bsdf={**TS, "sigma": 0.1}))
+    n = int(obs.mask.sum())
+    assert start_observation(obs, n_pixels=n) is obs  # small masks stay whole
+    thin = start_observation(obs, n_pixels=n // 16)
+    assert thin.mask[obs.peak] and not np.any(thin.mask & ~obs.mask)
+    assert n // 32 <= int(thin.mask.sum()) <= n // 8
+    rows, cols = np.nonzero(thin.mask)
+    assert len(set(rows % 4)) == 1 and len(set(cols % 4)) == 1  # step ⌊√16⌋ = 4
+    assert thin.P is obs.P and thin.specular is obs.specular
