@@ -384,9 +384,6 @@ def full_estimate(
     families = FAMILIES if lobe == "auto" else tuple(v.strip() for v in lobe.split("+"))
     shorts = {}
     for family in families:
-        if family == "torrance_sparrow":  # the multi-start's winner is already its short fit
-            shorts[family] = (best, _chi2(coarse, best))
-            continue
         x0 = best.copy()
         x0[6] = roughness_for_ts_sigma(family, best[6])
         c = coarse.with_lobe(family)
