@@ -35,6 +35,7 @@ from pydantic import (
 from ..files.dotted import set_dotted
 from ..errors import UserError
 from ..files.yamlfile import load_yaml_file, parse_setting
+from ..physics.reflectance import LOBES
 
 PositiveFloat = Annotated[float, Field(gt=0)]
 Vec3 = tuple[float, float, float]
@@ -199,13 +200,27 @@ class Texture(_Model):
 
 
 class _Analytic(_Model):
+    """A closed-form lobe family of :data:`~nearlight.physics.reflectance.LOBES`: its colour and
+    roughness keys are the family's (``Lobe.colour_key``, ``Lobe.roughness_key``), one home."""
+
     kd: RGB = (0.0, 0.0, 0.0)
     polarization: Literal["ideal", "fresnel"] = "ideal"
     eta: Annotated[float, Field(gt=1)] = 1.5
     texture: Texture | None = None
 
-    def _texture_truth(self) -> dict[str, Any]:
-        return {} if self.texture is None else {"texture": {"pattern": "checker", **self.texture.model_dump()}}
+    @property
+    def roughness(self) -> float:
+        return getattr(self, LOBES[self.model].roughness_key)
+
+    @property
+    def specular(self) -> RGB:
+        return getattr(self, LOBES[self.model].colour_key)
+
+    def truth(self) -> dict[str, Any]:
+        lobe = LOBES[self.model]
+        texture = {} if self.texture is None else {"texture": {"pattern": "checker", **self.texture.model_dump()}}
+        return {"model": self.model, lobe.colour_key: list(self.specular), lobe.roughness_key: self.roughness,
+                "kd": list(self.kd), "polarization": self.polarization, "eta": self.eta, **texture}  # fmt: skip
 
 
 class TorranceSparrow(_Analytic):
@@ -215,18 +230,6 @@ class TorranceSparrow(_Analytic):
     ks: RGB
     sigma: PositiveFloat
 
-    @property
-    def roughness(self) -> float:
-        return self.sigma
-
-    @property
-    def specular(self) -> RGB:
-        return self.ks
-
-    def truth(self) -> dict[str, Any]:
-        return {"model": self.model, "ks": list(self.ks), "sigma": self.sigma, "kd": list(self.kd),
-                "polarization": self.polarization, "eta": self.eta, **self._texture_truth()}  # fmt: skip
-
 
 class Ward(_Analytic):
     """Paper eq. 19 (isotropic Ward, as RADIANCE): ``rho_s`` per channel, roughness ``alpha``."""
@@ -234,18 +237,6 @@ class Ward(_Analytic):
     model: Literal["ward"]
     rho_s: RGB
     alpha: PositiveFloat
-
-    @property
-    def roughness(self) -> float:
-        return self.alpha
-
-    @property
-    def specular(self) -> RGB:
-        return self.rho_s
-
-    def truth(self) -> dict[str, Any]:
-        return {"model": self.model, "rho_s": list(self.rho_s), "alpha": self.alpha, "kd": list(self.kd),
-                "polarization": self.polarization, "eta": self.eta, **self._texture_truth()}  # fmt: skip
 
 
 class Microfacet(_Analytic):
@@ -255,18 +246,6 @@ class Microfacet(_Analytic):
     model: Literal["ggx", "beckmann"]
     ks: RGB
     alpha: PositiveFloat
-
-    @property
-    def roughness(self) -> float:
-        return self.alpha
-
-    @property
-    def specular(self) -> RGB:
-        return self.ks
-
-    def truth(self) -> dict[str, Any]:
-        return {"model": self.model, "ks": list(self.ks), "alpha": self.alpha, "kd": list(self.kd),
-                "polarization": self.polarization, "eta": self.eta, **self._texture_truth()}  # fmt: skip
 
 
 class MitsubaMaterial(_Model):
