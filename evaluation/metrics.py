@@ -411,7 +411,7 @@ def estimated_lamps(estimate: Any) -> np.ndarray:
 PER_LAMP_COLUMN = re.compile(r"^lamp\d+_position_error_(m|pct)$")
 
 
-def _lamp_columns(lamp_est: np.ndarray, lamp_true: np.ndarray, origin: np.ndarray) -> dict[str, float]:
+def _lamp_columns(lamp_est: np.ndarray | None, lamp_true: np.ndarray, origin: np.ndarray) -> dict[str, float]:
     """The lamp metric columns of one estimated lamp against one true lamp (NaN everything without an estimate)."""
     if lamp_est is None:
         return dict.fromkeys(("lamp_position_error_m", "lamp_position_error_pct", "direction_error_deg",
@@ -471,7 +471,8 @@ def lamp_scores(capture: Any, estimate: Any) -> dict[str, Any]:
     per_lamp = []
     for j, (t, o) in enumerate(zip(lamps, origins)):
         i = matching.estimate_of(j)
-        per_lamp.append(_lamp_columns(found[0] if one else None if i is None else found[i], t, o))
+        lamp_est = found[0] if one else (None if i is None else found[i])  # one and one: scored even if missed
+        per_lamp.append(_lamp_columns(lamp_est, t, o))
     with _overflow_is_inf():
         distances = [_finite_or_nan(np.linalg.norm(t - o)) for t, o in zip(lamps, origins)]
     if len(lamps) == 1:
