@@ -41,6 +41,19 @@ class Estimate:
         How to re-synthesise: ``{"type": "point"}``, or for the distant
         baseline ``{"type": "distant", "light_direction": [...],
         "view_direction": [...]}``.
+    lamp_positions : ndarray, shape (k, 3), or None
+        Optional, for a method that finds several lamps: every lamp it found,
+        world positions in metres, ``k ≥ 0`` (``lamp_position`` is then
+        conventionally the first of them, the one ``ks`` and ``sigma`` were
+        fitted with). None (the default, and what every one-lamp method
+        leaves) means the one lamp ``lamp_position``: read it through
+        :meth:`found_lamps`, never this field directly. The evaluation
+        matches these lamps to the capture's true ones
+        (:mod:`nearlight.evaluation.matching`); ``to_dict`` writes the key only
+        when it is set, so one-lamp estimates serialise as before. An
+        optional last field, so that every existing ``Estimate(...)`` call and
+        ``dataclasses.replace(est, lamp_position=...)`` on a one-lamp estimate
+        keeps its meaning.
     """
 
     method: str
@@ -52,6 +65,7 @@ class Estimate:
     diagnostics: dict[str, Any] = dataclasses.field(default_factory=dict)
     timings: dict[str, float] = dataclasses.field(default_factory=dict)
     light_model: dict[str, Any] = dataclasses.field(default_factory=lambda: {"type": "point"})
+    lamp_positions: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.lamp_position = np.asarray(self.lamp_position, dtype=float).reshape(3)
@@ -59,6 +73,15 @@ class Estimate:
         self.sigma = float(self.sigma)
         if self.covariance is not None:
             self.covariance = np.asarray(self.covariance, dtype=float).reshape(4, 4)
+        if self.lamp_positions is not None:
+            self.lamp_positions = np.asarray(self.lamp_positions, dtype=float).reshape(-1, 3)
+
+    def found_lamps(self) -> np.ndarray:
+        """Every lamp the estimate reports, shape (k, 3), metres: ``lamp_positions``, or
+        ``lamp_position`` as the one row of a one-lamp estimate."""
+        if self.lamp_positions is None:
+            return self.lamp_position.reshape(1, 3)
+        return self.lamp_positions
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict: lists for arrays, floats for scalars (NaN kept as None)."""
@@ -73,4 +96,5 @@ class Estimate:
             "stages": jsonable(self.stages),
             "diagnostics": jsonable(self.diagnostics),
             "timings": jsonable(self.timings),
+            **({} if self.lamp_positions is None else {"lamp_positions": jsonable(self.lamp_positions)}),
         }

@@ -50,7 +50,7 @@ import pandas as pd
 from ..errors import UserError
 from ..files.atomic import write_json
 from .store import read_environments, read_manifest, read_results
-from .metrics import INFO_COLUMNS, METRICS
+from .metrics import INFO_COLUMNS, METRICS, PER_LAMP_COLUMN
 
 #: Metrics compared (``runtime_s`` only on request; ``specular_rmse`` is in radiance units whose scale
 #: differs per scene, ``specular_rmse_rel`` carries the same information scale-free).
@@ -139,7 +139,7 @@ def _axes(df: pd.DataFrame, axes: Sequence[str] | None) -> list[str]:
         return [a for a in axes if a in df.columns]
     skip = {"task_id", "task_index", "sweep", "seed", "noisy", "method", "render_key", "renderer", "code_version",
             "status", "error", *METRICS, *INFO_COLUMNS}
-    return [c for c in df.columns if c not in skip and not c.startswith("crlb_")]
+    return [c for c in df.columns if c not in skip and not c.startswith("crlb_") and not PER_LAMP_COLUMN.match(c)]
 
 
 def _is_noisy(*sides: pd.DataFrame | None) -> bool:

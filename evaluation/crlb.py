@@ -33,6 +33,7 @@ from ..estimator.noise import sensor_noise, stokes_weights, variance
 from ..physics.camera import auto_saturation
 from ..physics.polarization import aolp, linear_stokes, through_polarizer
 from ..physics.reflectance import LOBES, specular_radiance
+from .metrics import capture_name, one_lamp_position
 
 
 def crlb(model: Callable[[np.ndarray], np.ndarray], theta: Any, *, noise_var: Any, steps: Any) -> np.ndarray:
@@ -146,6 +147,11 @@ def specular_crlb(capture: Any, *, noise_var: np.ndarray) -> dict[str, float]:
         (a lower bound on the RMS lamp position error);
         ``crlb_sigma_rel``: the bound on the roughness's standard deviation
         divided by it (the same for its Torrance–Sparrow σ, a fixed multiple).
+
+    Raises
+    ------
+    UserError
+        A capture with several lamps: the bound is for one lamp's fit.
     """
     truth = capture.truth
     bsdf = truth["bsdf"]
@@ -153,7 +159,7 @@ def specular_crlb(capture: Any, *, noise_var: np.ndarray) -> dict[str, float]:
     mask = capture.surface_mask & np.all(np.isfinite(capture.N), axis=-1)
     P, N = np.asarray(capture.P, float)[mask], np.asarray(capture.N, float)[mask]
     cam = np.asarray(capture.camera.position, float)
-    lamp = np.asarray(truth["lamp_position"], float)
+    lamp = one_lamp_position(truth, where=capture_name(capture), what="the Cramér–Rao bound")
     colour = np.broadcast_to(np.asarray(bsdf[lobe.colour_key], float), (3,)) * through_polarizer(
         truth.get("lamp_intensity", 2.0))
     rough = float(bsdf[lobe.roughness_key])

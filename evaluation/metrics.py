@@ -30,6 +30,7 @@ estimator's own forward model (see that module for why).
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from typing import Any
 
@@ -53,9 +54,13 @@ METRICS: dict[str, str] = {
 }
 #: The estimate itself (lamp position in m, σ in rad, Ks per channel), so a row can be re-synthesised.
 ESTIMATE_COLUMNS = ("est_lamp_x_m", "est_lamp_y_m", "est_lamp_z_m", "est_sigma", "est_ks_r", "est_ks_g", "est_ks_b")
+#: Lamp counts of every row: true lamps, lamps the estimate reports, true lamps matched to no estimate,
+#: estimates matched to no true lamp (:mod:`nearlight.evaluation.matching`). 1, 1, 0, 0 for a one-lamp
+#: method on a one-lamp capture.
+LAMP_COUNT_COLUMNS = ("n_lamps_true", "n_lamps_found", "lamps_missed", "lamps_extra")
 #: Other numeric columns of a row (not compared as regressions).
 INFO_COLUMNS = ("distance_signed_m", "lamp_distance_true_m", "sigma_truth", "crlb_lamp_m", "crlb_sigma_rel",
-                *ESTIMATE_COLUMNS)
+                *ESTIMATE_COLUMNS, *LAMP_COUNT_COLUMNS)
 
 
 def _vec(x: Any) -> np.ndarray:
@@ -326,6 +331,11 @@ def truth_estimate(capture: Any) -> Any:
         ``method="truth"``, a point lamp: every metric of :func:`score` is 0
         against a Torrance–Sparrow truth (up to the truth image's float32
         storage).
+
+    Raises
+    ------
+    UserError
+        A capture with several lamps (:func:`one_lamp_position`).
     """
     truth = capture.truth
     bsdf = truth["bsdf"]
@@ -334,10 +344,152 @@ def truth_estimate(capture: Any) -> Any:
 
     return Estimate(
         method="truth",
-        lamp_position=np.asarray(truth["lamp_position"], dtype=float),
+        lamp_position=one_lamp_position(truth, where=capture_name(capture), what="the oracle estimate"),
         ks=truth_ks(bsdf) * through_polarizer(intensity),
         sigma=truth_sigma(bsdf),
     )
+
+
+def true_lamps(truth: Mapping[str, Any]) -> np.ndarray:
+    """The true lamp positions of a capture's ``truth``, shape (m, 3), metres.
+
+    A one-lamp capture's ``truth["lamp_position"]`` (v1 captures have only
+    that), else every ``truth["lamps"][i]["position"]`` in their order.
+
+    Raises
+    ------
+    KeyError
+        A truth with neither.
+    """
+    if "lamp_position" in truth:
+        return np.asarray(truth["lamp_position"], dtype=float).reshape(1, 3)
+    return np.asarray([lamp["position"] for lamp in truth["lamps"]], dtype=float).reshape(-1, 3)
+
+
+def capture_name(capture: Any) -> str:
+    """How a message names ``capture``: the file it was read from, else ``capture``."""
+    source = getattr(capture, "source", None)
+    return str(source) if source is not None else "capture"
+
+
+def one_lamp_position(truth: Mapping[str, Any], *, where: str, what: str) -> np.ndarray:
+    """The position of the one true lamp, shape (3,), metres, for code that knows only one lamp.
+
+    Parameters
+    ----------
+    truth : mapping
+        A capture's ``truth``.
+    where, what : str
+        The capture (:func:`capture_name`) and the computation, for the message.
+
+    Raises
+    ------
+    UserError
+        A capture with several lamps (no ``truth["lamp_position"]``), in one
+        line naming ``where``, ``what`` and the number of lamps, rather than a
+        ``KeyError``.
+    """
+    if "lamp_position" in truth:
+        return np.asarray(truth["lamp_position"], dtype=float).reshape(3)
+    from ..errors import UserError
+
+    n = len(truth.get("lamps") or ())
+    raise UserError(f"{where}: {what} expects a capture with one lamp; it has {n} lamps (truth.lamps)")
+
+
+def estimated_lamps(estimate: Any) -> np.ndarray:
+    """Every lamp an estimate reports, shape (k, 3), metres: its ``lamp_positions`` when set (a method that
+    finds several lamps), else its one ``lamp_position`` (:meth:`nearlight.estimator.Estimate.found_lamps`)."""
+    several = getattr(estimate, "lamp_positions", None)
+    if several is None:
+        return np.asarray(estimate.lamp_position, dtype=float).reshape(1, 3)
+    return np.asarray(several, dtype=float).reshape(-1, 3)
+
+
+#: Per-lamp columns of a several-lamp capture's row, ``lamp<i>_position_error_m`` and ``..._pct`` (``i`` the
+#: true lamp's index in ``truth["lamps"]``; NaN when it was missed). One-lamp rows have none.
+PER_LAMP_COLUMN = re.compile(r"^lamp\d+_position_error_(m|pct)$")
+
+
+def _lamp_columns(lamp_est: np.ndarray | None, lamp_true: np.ndarray, origin: np.ndarray) -> dict[str, float]:
+    """The lamp metric columns of one estimated lamp against one true lamp (NaN everything without an estimate)."""
+    if lamp_est is None:
+        return dict.fromkeys(("lamp_position_error_m", "lamp_position_error_pct", "direction_error_deg",
+                              "distance_error_m", "distance_signed_m"), math.nan)
+    return {
+        "lamp_position_error_m": lamp_position_error(lamp_est, lamp_true),
+        "lamp_position_error_pct": lamp_position_error_pct(lamp_est, lamp_true, origin=origin),
+        "direction_error_deg": direction_error_deg(lamp_est, lamp_true, origin=origin),
+        "distance_error_m": distance_error(lamp_est, lamp_true, origin=origin),
+        "distance_signed_m": distance_error_signed(lamp_est, lamp_true, origin=origin),
+    }
+
+
+def _worst(values: list[float]) -> float:
+    """The largest of ``values``, NaN when any is NaN (a missed lamp has no error to be smaller than)."""
+    return math.nan if any(math.isnan(v) for v in values) else max(values)
+
+
+def lamp_scores(capture: Any, estimate: Any) -> dict[str, Any]:
+    """The lamp columns of ``estimate`` against every true lamp of ``capture``, through the matching.
+
+    Each true lamp's errors are measured from its own highlight point
+    (:func:`highlight_point`), against the estimated lamp matched to it
+    (:func:`nearlight.evaluation.matching.match_lamps`, gated by
+    :func:`~nearlight.evaluation.matching.gate_radii`).
+
+    One true and one estimated lamp (every one-lamp capture scored with a
+    one-lamp method): there is nothing to choose between, so no gate; the pair
+    is scored as it always was (the same numbers as before matching existed),
+    counts 1, 1, 0, 0 (a non-finite estimate is missed and extra, its errors NaN
+    as before).
+
+    Several true or estimated lamps: the row's lamp columns are the *worst*
+    over the true lamps (largest error, ``distance_signed_m`` the signed error
+    of largest magnitude), NaN when any true lamp was missed. Worst, not mean:
+    a method that finds one lamp well and the other badly, or not at all, must
+    not look half good, and a missed lamp has no error to average; with one
+    lamp the worst is that lamp's error. Each lamp's own errors are in the
+    ``lamp<i>_position_error_m`` and ``_pct`` columns.
+
+    Returns
+    -------
+    dict
+        ``lamp_position_error_m``, ``lamp_position_error_pct``,
+        ``direction_error_deg``, ``distance_error_m``, ``distance_signed_m``,
+        ``lamp_distance_true_m`` (with several lamps, the nearest lamp's
+        distance from its highlight), the :data:`LAMP_COUNT_COLUMNS`, and with
+        several true lamps the per-lamp columns (:data:`PER_LAMP_COLUMN`).
+    """
+    from .matching import gate_radii, match_lamps
+
+    lamps = true_lamps(capture.truth)
+    found = estimated_lamps(estimate)
+    origins = np.array([highlight_point(capture.P, capture.N, capture.camera.position, t) for t in lamps])
+    one = len(lamps) == 1 and len(found) == 1
+    matching = match_lamps(found, lamps, None if one else gate_radii(lamps, origins))
+    per_lamp = []
+    for j, (t, o) in enumerate(zip(lamps, origins)):
+        i = matching.estimate_of(j)
+        lamp_est = found[0] if one else (None if i is None else found[i])  # one and one: scored even if missed
+        per_lamp.append(_lamp_columns(lamp_est, t, o))
+    with _overflow_is_inf():
+        distances = [_finite_or_nan(np.linalg.norm(t - o)) for t, o in zip(lamps, origins)]
+    if len(lamps) == 1:
+        out = dict(per_lamp[0])
+        out["lamp_distance_true_m"] = distances[0]
+    else:
+        out = {c: _worst([p[c] for p in per_lamp]) for c in per_lamp[0] if c != "distance_signed_m"}
+        signed = [p["distance_signed_m"] for p in per_lamp]
+        out["distance_signed_m"] = math.nan if any(math.isnan(v) for v in signed) else max(signed, key=abs)
+        out["lamp_distance_true_m"] = math.nan if any(math.isnan(d) for d in distances) else min(distances)
+    out.update(n_lamps_true=float(len(lamps)), n_lamps_found=float(len(found)),  # floats, as every column
+               lamps_missed=float(len(matching.missed)), lamps_extra=float(len(matching.extra)))
+    if len(lamps) > 1:
+        for j, p in enumerate(per_lamp):
+            out[f"lamp{j}_position_error_m"] = p["lamp_position_error_m"]
+            out[f"lamp{j}_position_error_pct"] = p["lamp_position_error_pct"]
+    return out
 
 
 def score(capture: Any, estimate: Any) -> dict[str, float]:
@@ -347,18 +499,24 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
     ----------
     capture : Capture
         Noise-free capture with ``truth``, ``P``, ``N`` and
-        ``extra["truth_specular"]`` (``(H, W, 3)`` radiance).
+        ``extra["truth_specular"]`` (``(H, W, 3)`` radiance). One lamp
+        (``truth["lamp_position"]``) or several (``truth["lamps"]``).
     estimate : Estimate
         Its specular image is re-synthesised for grading by
         :func:`nearlight.evaluation.resynthesis.resynthesize`, an
         implementation independent of the estimator's forward model; it
-        knows distant-light estimates too.
+        knows distant-light estimates too. Its lamps
+        (:func:`estimated_lamps`) are matched to the true ones
+        (:func:`lamp_scores`).
 
     Returns
     -------
     dict of str to float
         The :data:`METRICS` columns (but ``runtime_s``) and ``distance_signed_m``,
-        ``lamp_distance_true_m`` (m), ``sigma_truth`` (rad). Each is finite or
+        ``lamp_distance_true_m`` (m), ``sigma_truth`` (rad), the
+        :data:`LAMP_COUNT_COLUMNS` and, with several true lamps, the per-lamp
+        columns (:func:`lamp_scores`: the lamp columns are then the worst over
+        the true lamps, NaN when one was missed). Each is finite or
         NaN; NaN rules:
 
         - a σ the estimator declares undetermined
@@ -373,28 +531,32 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
           errors NaN; no highlight at all (no surface point sees both lamp
           and camera): every metric measured from it NaN;
         - a true σ ≤ 0: σ error NaN; no Ks in the truth BSDF: Ks error NaN.
+
+        The specular RMSEs compare the estimate's re-synthesis (its
+        ``lamp_position`` with its ``ks`` and ``sigma``) with the observed
+        specular image of every lamp together.
     """
     truth = capture.truth
     bsdf = truth["bsdf"]
-    lamp_true = np.asarray(truth["lamp_position"], dtype=float)
-    lamp_est = np.asarray(estimate.lamp_position, dtype=float)
-    origin = highlight_point(capture.P, capture.N, capture.camera.position, lamp_true)
+    lamps = lamp_scores(capture, estimate)
     sigma_true = truth_sigma(bsdf)
     ks_true = truth_ks(bsdf)
     observed = capture.extra["truth_specular"]
     mask = capture.surface_mask
     rendered = resynthesize(capture, estimate)
-    return {
-        "lamp_position_error_m": lamp_position_error(lamp_est, lamp_true),
-        "lamp_position_error_pct": lamp_position_error_pct(lamp_est, lamp_true, origin=origin),
-        "direction_error_deg": direction_error_deg(lamp_est, lamp_true, origin=origin),
-        "distance_error_m": distance_error(lamp_est, lamp_true, origin=origin),
+    out = {
+        "lamp_position_error_m": lamps.pop("lamp_position_error_m"),
+        "lamp_position_error_pct": lamps.pop("lamp_position_error_pct"),
+        "direction_error_deg": lamps.pop("direction_error_deg"),
+        "distance_error_m": lamps.pop("distance_error_m"),
         "sigma_rel_error": math.nan if "sigma" in estimate.diagnostics.get("undetermined", ())
         else sigma_relative_error(estimate.sigma, sigma_true),
         "ks_rel_error": math.nan if ks_true is None else ks_relative_error(estimate.ks, ks_true),
         "specular_rmse": specular_rmse(rendered, observed, mask),
         "specular_rmse_rel": specular_rmse_relative(rendered, observed, mask),
-        "distance_signed_m": distance_error_signed(lamp_est, lamp_true, origin=origin),
-        "lamp_distance_true_m": _finite_or_nan(np.linalg.norm(lamp_true - origin)),
+        "distance_signed_m": lamps.pop("distance_signed_m"),
+        "lamp_distance_true_m": lamps.pop("lamp_distance_true_m"),
         "sigma_truth": sigma_true,
     }
+    out.update(lamps)
+    return out

@@ -29,6 +29,7 @@ from ..estimator.observation import observe, surface_at
 from ..estimator.paper import RaySearch, mirror_oracle_pixel
 from ..generator.analytic import analytic_capture
 from ..physics.reflectance import ward_from_torrance_sparrow
+from .metrics import capture_name, one_lamp_position
 
 #: The TS board of the studies: the analytic default scene with σ = 0.05 (the issue's).
 TS_BOARD = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.05}
@@ -36,11 +37,16 @@ TS_BOARD = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.05}
 CAMERA = (0.0, -0.35, 0.5)
 
 
+def _lamp(capture: Any) -> np.ndarray:
+    """The capture's one lamp, metres (a one-line UserError for a capture with several)."""
+    return one_lamp_position(capture.truth, where=capture_name(capture), what="the paper-fidelity study")
+
+
 def _exact_ray(capture: Any) -> tuple[RaySearch, float]:
     """The ray of eq. 9 from the exact mirror point (ORACLE), and the true t along it."""
     obs = observe(capture)
     ray = RaySearch(obs, surface_at(obs, mirror_oracle_pixel(capture, obs)))
-    t_true = float(np.linalg.norm(np.asarray(capture.truth["lamp_position"]) - ray.origin))
+    t_true = float(np.linalg.norm(_lamp(capture) - ray.origin))
     return ray, t_true
 
 
@@ -89,7 +95,7 @@ def t_star_curve(*, shifts: Sequence[float] = (0.0, 0.1, 0.25, 0.5, 1.0), bsdf: 
         where s ≤ −1), ``delta_px`` (|p − m|, pixels).
     """
     cap = analytic_capture(bsdf=bsdf or TS_BOARD, analyzer_angles_deg=None, **scene)
-    lamp = np.asarray(cap.truth["lamp_position"], dtype=float)
+    lamp = _lamp(cap)
     obs = observe(cap)
     delta = float(np.linalg.norm(np.asarray(obs.peak, dtype=float) - mirror_oracle_pixel(cap, obs)))
     rows = []
@@ -154,7 +160,7 @@ def ep_curves(capture: Any, *, factors: Sequence[float] | None = None) -> dict[s
     """
     obs = observe(capture)
     delta = float(np.linalg.norm(np.asarray(obs.peak, dtype=float) - mirror_oracle_pixel(capture, obs)))
-    lamp = np.asarray(capture.truth["lamp_position"], dtype=float)
+    lamp = _lamp(capture)
     grid = np.geomspace(0.05, 4.0, 160) if factors is None else np.asarray(factors, dtype=float)
     out = {}
     for name, ray in (("peak", RaySearch(obs)), ("mirror", _exact_ray(capture)[0])):

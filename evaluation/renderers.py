@@ -76,6 +76,23 @@ class Renderer:
         """Centre of the object, metres (the origin of the lamp-distance ray)."""
         raise NotImplementedError
 
+    def _one_lamp_key(self, scene: dict, *, where: str) -> str:
+        """The key of the one lamp's position: ``lamp_key``, or ``lamps.0.position`` for a one-element
+        ``lamps:`` list.
+
+        The ``lamp_distance`` axis puts *the* lamp at a distance from the object centre. A scene with
+        several lamps is a one-line error rather than every lamp moved: one distance cannot be every
+        lamp's (they may be at different distances), and scaling them all would silently make the axis
+        mean something else (a ratio, not metres); sweep them with ``lamps.<i>.position`` instead.
+        """
+        lamps = scene.get("lamps") if get_dotted(scene, self.lamp_key) is None else None
+        if isinstance(lamps, list):
+            if len(lamps) == 1:
+                return "lamps.0.position"
+            raise UserError(f"{where}: lamp_distance: expected a scene with one lamp, this one has {len(lamps)} "
+                            "(lamps:); set each lamp with lamps.<i>.position instead")
+        return self.lamp_key
+
     def apply_axis(self, scene: dict, name: str, value: Any, *, where: str) -> None:
         """Change ``scene`` in place for one physical axis value."""
         if name == "object":
@@ -114,13 +131,14 @@ class Renderer:
             angles = [180.0 * k / value for k in range(value)] if isinstance(value, int) else list(value)
             set_dotted(scene, self.angles_key, angles, where=where)
         elif name == "lamp_distance":
+            key = self._one_lamp_key(scene, where=where)
             centre = self.object_centre(scene)
-            lamp = np.asarray(get_dotted(scene, self.lamp_key), dtype=float)
+            lamp = np.asarray(get_dotted(scene, key), dtype=float)
             ray = lamp - centre
             norm = float(np.linalg.norm(ray))
             if not norm > 0:
                 raise UserError(f"{where}: the lamp sits at the object centre: no ray to move it along")
-            set_dotted(scene, self.lamp_key, (centre + float(value) * ray / norm).tolist(), where=where)
+            set_dotted(scene, key, (centre + float(value) * ray / norm).tolist(), where=where)
         else:  # pragma: no cover - sweep.AXES lists only the names above
             raise ValueError(name)
 

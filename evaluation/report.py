@@ -13,6 +13,10 @@ Writes into ``DIR/report/``:
 - for each ``set`` or ``realism`` axis, "which imperfection breaks which method"
   (:mod:`nearlight.evaluation.one_at_a_time`): ``one_at_a_time.csv`` (every such axis, long
   form) and ``one_at_a_time_<axis>.png`` (labels × methods heatmap), the tables in ``summary.md``;
+- when a capture has several lamps or a method reports several (:mod:`nearlight.evaluation.matching`):
+  ``lamps.csv``, per method the true lamps, the lamps found, matched, missed and extra (summed over
+  tasks), the tasks that found every lamp and nothing else, and each true lamp's median position
+  error; ``lamps.png``, the missed and extra lamps per method;
 - when configurations without camera noise ran several seeds (per-shot draws: ``camera.jitter_px``,
   analyzer jitter, lamp flicker), "luck" (:mod:`nearlight.evaluation.report_luck`): ``luck.csv``, the
   spread over those seeds beside what each axis does, and ``luck_vs_axes.png``.
@@ -28,7 +32,8 @@ import pandas as pd
 
 from ..errors import UserError
 from .environment import code_version
-from .metrics import METRICS
+from .matching import GATE_FRACTION
+from .metrics import LAMP_COUNT_COLUMNS, METRICS, PER_LAMP_COLUMN
 from .one_at_a_time import LABEL_AXES, SPLIT, label_table, markdown_tables, plot_heatmap
 from .report_luck import LUCK_PNG, luck_table, plot_luck
 from .provenance import record
@@ -133,12 +138,62 @@ def plot_axis(df: pd.DataFrame, axis: str, path: Path) -> None:
     save_png(fig, path, dpi=110)
 
 
-def report_files(varied: list[str], labelled: list[str] = (), luck: bool = False) -> dict[str, str]:
+def lamp_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Lamps found, matched, missed and extra per method (an empty frame when every row has one true lamp and
+    one estimated lamp, as every sweep before several lamps: then nothing is written).
+
+    Columns: ``method``, ``tasks`` (successful), ``lamps_true``, ``lamps_found``, ``matched``,
+    ``missed``, ``extra`` (sums over the tasks), ``all_found`` (tasks with nothing missed and nothing
+    extra), and ``lamp<i>_median_error_pct`` for every true lamp index of a several-lamp capture
+    (median over the tasks where it was matched).
+    """
+    if not all(c in df for c in LAMP_COUNT_COLUMNS):
+        return pd.DataFrame()
+    ok = df[df["status"] == "ok"]
+    if not ((ok["n_lamps_true"] > 1) | (ok["n_lamps_found"] > 1)).any():
+        return pd.DataFrame()
+    per_lamp = [c for c in ok.columns if PER_LAMP_COLUMN.match(c) and c.endswith("_pct")]
+    g = ok.assign(matched=ok["n_lamps_true"] - ok["lamps_missed"],
+                  clean=(ok["lamps_missed"] == 0) & (ok["lamps_extra"] == 0)).groupby("method", sort=False)
+    t = g.agg(tasks=("status", "size"), lamps_true=("n_lamps_true", "sum"), lamps_found=("n_lamps_found", "sum"),
+              matched=("matched", "sum"), missed=("lamps_missed", "sum"), extra=("lamps_extra", "sum"),
+              all_found=("clean", "sum"))
+    for c in sorted(per_lamp, key=lambda c: int(c[4:c.index("_")])):
+        t[c.replace("_position_error_pct", "_median_error_pct")] = g[c].median()
+    int_cols = ["lamps_true", "lamps_found", "matched", "missed", "extra", "all_found"]
+    return t.astype({c: int for c in int_cols}).reset_index()
+
+
+def plot_lamps(table: pd.DataFrame, path: Path) -> None:
+    """PNG: missed and extra lamps per method (bars), beside the true lamps they are out of."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+
+    x = np.arange(len(table))
+    fig, ax = plt.subplots(figsize=(max(4.0, 1.2 * len(table) + 2), 3.4), constrained_layout=True)
+    for k, (col, label) in enumerate((("lamps_true", "true lamps"), ("matched", "matched"), ("missed", "missed"),
+                                      ("extra", "extra"))):
+        ax.bar(x + (k - 1.5) * 0.2, table[col], width=0.2, label=label)
+    ax.set_xticks(x, [str(m) for m in table["method"]], rotation=20)
+    ax.set_ylabel("lamps (summed over tasks)")
+    ax.yaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, axis="y")
+    fig.suptitle("lamps matched, missed and extra per method")
+    save_png(fig, path, dpi=110)
+
+
+def report_files(varied: list[str], labelled: list[str] = (), luck: bool = False,
+                 lamps: bool = False) -> dict[str, str]:
     """``{file name: kind}`` of every file a report writes (kinds: :data:`nearlight.files.outputs.KINDS`).
 
     ``varied``: the axes with several values; ``labelled``: the axes of named configurations
     (:data:`~nearlight.evaluation.one_at_a_time.LABEL_AXES`) the sweep has; ``luck``: whether the
-    luck section is written (:func:`~nearlight.evaluation.report_luck.luck_table` not empty).
+    luck section is written (:func:`~nearlight.evaluation.report_luck.luck_table` not empty); ``lamps``:
+    whether the lamps section is (:func:`lamp_table` not empty).
     """
     files = {"summary.md": "report-md", "overall.csv": "report-csv", "by_axis.csv": "report-csv",
              "crlb.csv": "report-csv"}  # fmt: skip
@@ -148,6 +203,8 @@ def report_files(varied: list[str], labelled: list[str] = (), luck: bool = False
         files.update({_heatmap_name(a): "png" for a in labelled})
     if luck:
         files.update({"luck.csv": "report-csv", LUCK_PNG: "png"})
+    if lamps:
+        files.update({"lamps.csv": "report-csv", "lamps.png": "png"})
     return files
 
 
@@ -187,7 +244,8 @@ def write_report(
     labelled = [a for a in axes if a in LABEL_AXES]
     folder = Path(out) if out is not None else results_dir / "report"
     luck = luck_table(df, axes)
-    check_files_in(folder, report_files(varied, labelled, luck=not luck.empty))
+    lamps = lamp_table(df)
+    check_files_in(folder, report_files(varied, labelled, luck=not luck.empty, lamps=not lamps.empty))
     make_folder(folder, what="report folder")
 
     overall = stats(df, ["method"])
@@ -210,6 +268,17 @@ def write_report(
            "Cells: median (90th percentile) over successful tasks. Units: "
            + "; ".join(f"{m} [{METRICS[m]}]" for m in HEADLINE) + ".", "",
            "## Overall", "", _md(counts.reset_index()), "", _md(_wide(overall, ["method"])), ""]
+    if not lamps.empty:
+        _write_text(folder / "lamps.csv", lamps.to_csv(index=False))
+        plot_lamps(lamps, folder / "lamps.png")
+        md += ["## Lamps found", "",
+               "Estimated lamps matched to true ones (Hungarian on the position error, within "
+               f"{100 * GATE_FRACTION:g} % of each true lamp's distance from its highlight: "
+               "`nearlight.evaluation.matching`), summed over each method's successful tasks. A task's lamp errors are the worst over its true lamps and NaN when one was "
+               "missed, so the other tables leave such a task out of the lamp medians (their `n` is smaller): "
+               "read them with `missed` here. `all_found`: tasks with nothing missed and nothing extra; "
+               "`lamp<i>_median_error_pct`: true lamp i's median error where it was matched.", "",
+               _md(lamps), "", "![lamps matched, missed and extra](lamps.png)", ""]
     tables = [label_table(df, a) for a in labelled]
     if tables:
         _write_text(folder / "one_at_a_time.csv", pd.concat(tables, ignore_index=True).to_csv(index=False))

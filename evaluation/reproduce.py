@@ -214,6 +214,10 @@ def _resynth(capture: Any, row: Any) -> np.ndarray:
 
 
 def _truth(capture: Any) -> dict[str, Any]:
+    """The truth a section records: the one lamp and the BSDF (a one-line UserError for several lamps)."""
+    from .metrics import capture_name, one_lamp_position
+
+    one_lamp_position(capture.truth, where=capture_name(capture), what="the paper reproduction")
     return {"lamp_position": capture.truth["lamp_position"], "bsdf": capture.truth["bsdf"]}
 
 

@@ -42,11 +42,21 @@ def _failed(r: dict[str, Any], columns: int) -> list[str] | None:
     return None if r["status"] == "ok" else [f"failed: {r['error']}"] + [""] * (columns - 1)
 
 
+def _lamp_true(ex: dict[str, Any], key: str) -> Any:
+    """An experiment's one true lamp (a one-line UserError when its truth has none: several lamps)."""
+    if "lamp_position" not in ex["truth"]:
+        from ..errors import UserError
+
+        raise UserError(f"reproduction document: experiments.{key}.truth.lamp_position: missing "
+                        "(the reproduction expects a capture with one lamp)")
+    return ex["truth"]["lamp_position"]
+
+
 def board_section(doc: dict[str, Any]) -> str:
     ex, paper = doc["experiments"]["board"], doc["paper"]["board"]
     unit = ex["paper_unit_m"]
     true_u = np.asarray(paper["lamp_true"])
-    lamp_true = np.asarray(ex["truth"]["lamp_position"])
+    lamp_true = np.asarray(_lamp_true(ex, "board"))
     paper_err = float(np.linalg.norm(np.asarray(paper["lamp_first_stage"]) - true_u))
     rows = [
         ["truth", _vec(lamp_true / unit), "", "", "", ""],
@@ -81,7 +91,7 @@ def object_section(doc: dict[str, Any], key: str, heading: str) -> str:
     ex = doc["experiments"][key]
     bsdf, noise = ex["truth"]["bsdf"], ex["camera_noise"]
     paper = doc["paper"]["bookend"]
-    rows = [["truth", _vec(ex["truth"]["lamp_position"]), "", "", f"{bsdf['sigma']}", _vec(bsdf["ks"], 2), "", ""]]
+    rows = [["truth", _vec(_lamp_true(ex, key)), "", "", f"{bsdf['sigma']}", _vec(bsdf["ks"], 2), "", ""]]
     variants = ex.get("variants", {})
     for suffix, methods in [("", ex["methods"])] + [(f" ({v})", d["methods"]) for v, d in variants.items()]:
         for m, r in methods.items():

@@ -40,12 +40,15 @@ def noisy_capture(clean: Any, task: Mapping[str, Any]) -> Any:
 
 
 def _crlb(clean: Any, task: Mapping[str, Any]) -> dict[str, float]:
-    """CRLB columns when they apply (a lobe with a closed form, ideal mode, a stack, Gaussian-modelled camera noise)."""
+    """CRLB columns when they apply (one lamp, a lobe with a closed form, ideal mode, a stack, Gaussian-modelled
+    camera noise)."""
     from ..physics.reflectance import LOBES
     from .crlb import camera_noise_variance, specular_crlb
 
     bsdf = clean.truth["bsdf"]
     if not task["crlb"] or task["noise"] is None or clean.stack is None or bsdf.get("model") not in LOBES:
+        return {}
+    if "lamp_position" not in clean.truth:  # several lamps: the bound is for one lamp's fit
         return {}
     if bsdf.get("polarization", "ideal") != "ideal":
         return {}
