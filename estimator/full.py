@@ -361,7 +361,7 @@ def full_estimate(
     clock = time.perf_counter()
     use = fit_pixels(obs, max_pixels=int(max_pixels), saturation=saturation)
     camera = camera_noise(capture, surface=obs.surface) if noise == "auto" else None
-    std = None if camera is None else np.sqrt(specular_variance(capture, obs.specular, camera))[use]
+    std = None if camera is None else np.sqrt(specular_variance(capture, obs.specular, camera, pixels=use))
     model = PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use], std=std)
     lower = np.concatenate([np.full(3, -np.inf), np.zeros(3), [1e-4]])
     upper = np.concatenate([np.full(3, np.inf), np.full(3, np.inf), [np.pi / 2]])
