@@ -22,10 +22,10 @@ ray begins at the hole's filled point
 from __future__ import annotations
 
 import time
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import AfterValidator
+from pydantic import AfterValidator, Field
 
 from ..capture import Capture
 from ..errors import UserError
@@ -36,6 +36,7 @@ from .observation import Observation
 from .options import Choice, Count, CountOrZero, Positive, forwards
 from .paper import RaySearch, stage_one
 from .separation import SEPARATION_METHODS
+from .several import MAX_LAMPS, several_estimate, several_highlights_warning
 from .pixels import fit_pixels
 from .result import Estimate
 from ..physics.reflectance import LOBES, peak_shape, roughness_for_ts_sigma, shading_geometry, ts_sigma
@@ -58,6 +59,8 @@ REFIT_EVIDENCE = 50.0
 
 #: ``full``'s ``lobe`` option.
 LobeChoice = Annotated[str, AfterValidator(_lobe_choice)]
+#: ``full``'s ``lamps`` option: a number of lamps, or ``auto``.
+LampCount = Annotated[int, Field(ge=1, le=MAX_LAMPS)] | Literal["auto"]
 #: Pixel-weight models of ``full``'s ``noise`` option.
 NOISE_MODELS = ("none", "auto")
 
@@ -170,6 +173,13 @@ def _starts(init: Estimate, obs: Observation, *, n_starts: int) -> list[np.ndarr
     return starts
 
 
+def _with_warning(diagnostics: dict, warning: str | None) -> dict:
+    """``diagnostics`` with ``warning`` appended to its ``warnings`` list (no key at all without one)."""
+    if warning is None:
+        return diagnostics
+    return {**diagnostics, "warnings": [*diagnostics.get("warnings", []), warning]}
+
+
 def _chi2(model: PointLampModel, x: np.ndarray) -> float:
     """Sum of squared (weighted) residuals at ``x``."""
     return float(np.sum(np.square(model.residuals(x))))
@@ -187,6 +197,7 @@ def full_estimate(
     saturation: Positive | None = None,
     n_starts: CountOrZero = 6,
     separation: Choice(SEPARATION_METHODS) = "projected",
+    lamps: LampCount = 1,
     **init_options,
 ) -> Estimate:
     """Method ``full``: ``paper-init``, then a weighted robust fit of lamp position, Ks and roughness.
@@ -267,6 +278,13 @@ def full_estimate(
         Extra starting distances along the peak ray (see :func:`_starts`);
         the start with the lowest least-squares cost after a short fit (on
         at most ~2000 pixels) wins.
+    lamps : int or "auto"
+        Number of point lamps fitted: 1 (the default: the fit above), K ≤
+        :data:`~nearlight.estimator.several.MAX_LAMPS`, or ``"auto"`` (the count
+        of least BIC); see :func:`~nearlight.estimator.several.several_estimate`.
+        With one lamp, an image of several separate highlights
+        (:func:`~nearlight.estimator.several.segment_highlights`) adds a line to
+        ``diagnostics["warnings"]``.
     **init_options
         Options of :func:`~nearlight.estimator.paper.stage_one`.
 
@@ -282,6 +300,10 @@ def full_estimate(
     """
     if loss not in LOSSES:
         raise UserError(f"option loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
+    if lamps != 1:
+        return several_estimate(capture, lamps=lamps, lobe=lobe, noise=noise, loss=loss, f_scale=f_scale,
+                                max_pixels=max_pixels, saturation=saturation, n_starts=n_starts,
+                                separation=separation, **init_options)
     init, obs = stage_one(capture, strict_t_max=False, separation=separation, **init_options)
     clock = time.perf_counter()
     use = fit_pixels(obs, max_pixels=int(max_pixels), saturation=saturation)
@@ -354,6 +376,6 @@ def full_estimate(
         sigma=per_roughness * x[6],
         covariance=cov4,
         stages={"init": init.stages["init"], "full": stage},
-        diagnostics=init.diagnostics,
+        diagnostics=_with_warning(init.diagnostics, several_highlights_warning(obs)),
         timings=timings,
     )
