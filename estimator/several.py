@@ -206,12 +206,17 @@ class SeveralLampModel:
             out[[6 * i + 3 + m for i in range(self.k)]] = colour
         return out
 
+    def lamp_peaks(self, x: np.ndarray) -> np.ndarray:
+        """Each lamp's largest (weighted) radiance over the pixels, mean over channels, shape (K,)."""
+        return np.array([np.max(self._one.residuals(self.lamp_params(x, i)).reshape(-1, 3).mean(axis=-1))
+                         for i in range(self.k)])
+
     def chi2(self, x: np.ndarray) -> float:
         """Sum of squared (weighted) residuals at ``x``."""
         return float(np.sum(np.square(self.residuals(x))))
 
 
-def lamp_count_evidence(chi2: dict[int, float], n_values: int) -> dict[int, dict[str, float]]:
+def lamp_count_evidence(chi2: dict[int, float], faintest: dict[int, float], n_values: int) -> dict[int, dict]:
     """Bayesian information criterion of each lamp count, from its weighted χ².
 
     ``BIC_K = χ²_K / s² + p_K ln n`` with ``p_K = 6K + 1`` parameters and
@@ -220,31 +225,46 @@ def lamp_count_evidence(chi2: dict[int, float], n_values: int) -> dict[int, dict
     ``s²`` makes ``χ²/s²`` a −2 log-likelihood whether or not the pixel
     weights are the camera's (a noise-free capture's are a floor), and with
     one ``s²`` for all K the differences compare like with like. BIC rather
-    than AIC: its penalty (ln n ≈ 11 per parameter for ~20 000 pixels, 6 per
+    than AIC: its penalty (ln n ≈ 11 per parameter for ~20 000 pixels, 66 per
     lamp) grows with the data, so a lamp is added only when it explains far
-    more than noise or a slightly wrong lobe shape would, and it picks the
-    true count with probability → 1 as pixels grow; AIC's 2 per parameter
-    added spurious lamps to absorb small model errors.
+    more than noise would, and it picks the true count with probability → 1
+    as pixels grow; AIC's 2 per parameter adds lamps that absorb small model
+    errors.
+
+    A count is admissible only when each of its lamps is a highlight one
+    could see: its own peak radiance at least :data:`HIGHLIGHT_FLOOR` of the
+    brightest lamp's (the observation's specular threshold). On a noise-free
+    one-lamp board, a second lamp of colour 3e-9 lowered the χ² of float32
+    rounding by enough to pass BIC; no noise level is that small otherwise.
 
     Parameters
     ----------
     chi2 : dict of int to float
         Weighted χ² of the best fit with K lamps.
+    faintest : dict of int to float
+        Per K, the faintest lamp's peak radiance over the brightest's.
     n_values : int
         Number of fitted values (pixels × 3 channels).
 
     Returns
     -------
     dict of int to dict
-        Per K: ``chi2``, ``n_params``, ``bic`` and ``delta_bic`` (to the smallest).
+        Per K: ``chi2``, ``n_params``, ``bic``, ``delta_bic`` (to the smallest
+        admissible), ``faintest`` and ``admissible``.
     """
     kmax = max(chi2)
     s2 = chi2[kmax] / max(n_values - (6 * kmax + 1), 1)
     s2 = s2 if s2 > 0 else 1.0
     bic = {k: c / s2 + (6 * k + 1) * np.log(n_values) for k, c in chi2.items()}
-    best = min(bic.values())
-    return {k: {"chi2": chi2[k], "n_params": 6 * k + 1, "bic": float(bic[k]), "delta_bic": float(bic[k] - best)}
-            for k in sorted(chi2)}
+    admissible = {k: bool(faintest[k] >= HIGHLIGHT_FLOOR) for k in chi2}
+    best = min(b for k, b in bic.items() if admissible[k])
+    return {k: {"chi2": chi2[k], "n_params": 6 * k + 1, "bic": float(bic[k]), "delta_bic": float(bic[k] - best),
+                "faintest": float(faintest[k]), "admissible": admissible[k]} for k in sorted(chi2)}
+
+
+def chosen_count(evidence: dict[int, dict]) -> int:
+    """The admissible lamp count of least BIC (:func:`lamp_count_evidence`)."""
+    return min((k for k, v in evidence.items() if v["admissible"]), key=lambda k: evidence[k]["bic"])
 
 
 def _region_start(obs: Observation, region: np.ndarray, std: np.ndarray | None, *, n_starts: int,
@@ -381,27 +401,41 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
     x1 = np.concatenate([s1["lamp_position"], s1["ks"], [s1["roughness"]]])
     fits = {1: {"x": x1, "lobe": s1["lobe"], "chi2": s1["chi2"], "cov": s1["covariance_7"],
                 **{k: s1[k] for k in ("f_scale", "cost", "nfev", "status", "rms")}}}
+    regional: dict[int, np.ndarray | None] = {}
+
+    def highlight_start(i: int) -> np.ndarray | None:
+        if i not in regional:
+            regional[i] = _region_start(obs, found.labels == i + 1, std_img, n_starts=int(n_starts), starts=_starts)
+        return regional[i]
+
     for k in range(2, k_max + 1):
         previous = fits[k - 1]
         if k <= len(found.peaks):
-            source, region = obs, found.labels == k
+            new = highlight_start(k - 1)
         else:  # past the highlights: the brightest part of what the k − 1 lamps leave unexplained
             unweighted = SeveralLampModel(PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use],
                                                          lobe=previous["lobe"]), k - 1)
             left = np.zeros_like(obs.specular)
             left[use] = -unweighted.residuals(previous["x"]).reshape(-1, 3)
-            source = dataclasses.replace(obs, specular=left)
-            region = segment_highlights(left, use).labels == 1
-        start = _region_start(source, region, std_img, n_starts=int(n_starts), starts=_starts)
-        if start is None:
+            new = _region_start(dataclasses.replace(obs, specular=left), segment_highlights(left, use).labels == 1,
+                                std_img, n_starts=int(n_starts), starts=_starts)
+        candidates = []  # Torrance–Sparrow starts: the k − 1 lamps and the new one, and every highlight's own
+        if new is not None:
+            carried = _convert_roughness(previous["x"], previous["lobe"], "torrance_sparrow")
+            candidates.append(np.concatenate([carried[:-1], new[:6], carried[-1:]]))
+        own = [highlight_start(i) for i in range(k)] if k <= len(found.peaks) else []
+        if own and all(o is not None for o in own):  # a one-lamp fit to several lobes can widen its lobe to cover them
+            candidates.append(np.concatenate([*(o[:6] for o in own), own[0][-1:]]))
+        if not candidates:
             break
-        x0 = np.concatenate([_convert_roughness(previous["x"], previous["lobe"], "torrance_sparrow")[:-1],
-                             start[:6], [ts_sigma(previous["lobe"], previous["x"][-1])]])
         shorts = {}
         for fam in families:
             m = SeveralLampModel(base.with_lobe(fam), k).subset(slice(None, None, stride))
-            xf = _short_fit(m, m.linear_colours(_convert_roughness(x0, "torrance_sparrow", fam)), obs.scale)["x"]
-            shorts[fam] = (xf, m.chi2(xf))
+            for x0 in candidates:
+                xf = _short_fit(m, m.linear_colours(_convert_roughness(x0, "torrance_sparrow", fam)), obs.scale)["x"]
+                c = m.chi2(xf)
+                if fam not in shorts or c < shorts[fam][1]:
+                    shorts[fam] = (xf, c)
         fam = min(shorts, key=lambda f: shorts[f][1])
         model = SeveralLampModel(base.with_lobe(fam), k)
         xs = shorts[fam][0]
@@ -412,8 +446,13 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
     if lamps != "auto" and int(lamps) not in fits:
         raise UserError(f"{capture.name}: option lamps={lamps}: found starts for only {max(fits)} lamps "
                         f"({len(found.peaks)} separate highlights, and no lobe left in the residual)")
-    evidence = lamp_count_evidence({k: v["chi2"] for k, v in fits.items()}, 3 * int(use.sum()))
-    k = min(evidence, key=lambda k: evidence[k]["bic"]) if lamps == "auto" else int(lamps)
+    peaks = SeveralLampModel(PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use]), 1)
+    faintest = {}
+    for k, fit in fits.items():
+        peaks_k = SeveralLampModel(peaks.lamp.with_lobe(fit["lobe"]), k).lamp_peaks(fit["x"])
+        faintest[k] = float(peaks_k.min() / peaks_k.max()) if peaks_k.max() > 0 else 0.0
+    evidence = lamp_count_evidence({k: v["chi2"] for k, v in fits.items()}, faintest, 3 * int(use.sum()))
+    k = chosen_count(evidence) if lamps == "auto" else int(lamps)
     if lamps == "auto" and k == 1:
         return _with_count(one, evidence, found)
     fit, family = fits[k], fits[k]["lobe"]
