@@ -52,6 +52,9 @@ SMOOTH_PX = 1.5
 #: by the smoothing), so noise on one lobe's flank makes no highlight.
 HIGHLIGHT_DIP = 0.2
 HIGHLIGHT_DIP_ABS = 0.05
+#: Dip levels are rounded down to multiples of this fraction of the brightest (at most 1/LEVEL_STEP
+#: labellings of the image however many noisy candidates; rounding down only merges more).
+LEVEL_STEP = 0.005
 #: Faintest highlight, fraction of the brightest (the observation's specular mask threshold).
 HIGHLIGHT_FLOOR = 0.05
 
@@ -86,7 +89,7 @@ def segment_highlights(specular: np.ndarray, located: np.ndarray, *, smooth_px: 
     first. A candidate is a highlight when the connected component of
     ``{smoothed ≥ its height − max(dip × its height, dip_abs × brightest)}``
     that holds it contains no brighter candidate (its topographic prominence
-    is at least that). Pixels are assigned to highlights by a watershed of the smoothed
+    is at least that; the level rounded down to :data:`LEVEL_STEP`). Pixels are assigned to highlights by a watershed of the smoothed
     image from the peaks (:func:`scipy.ndimage.watershed_ift`).
 
     Parameters
@@ -115,8 +118,12 @@ def segment_highlights(specular: np.ndarray, located: np.ndarray, *, smooth_px: 
     order = np.lexsort((cols, rows, -s[rows, cols]))  # brightest first, ties by position
     candidates = [(int(rows[i]), int(cols[i])) for i in order]
     peaks: list[tuple[int, int]] = []
+    components: dict[int, np.ndarray] = {}  # by level, in steps of LEVEL_STEP × top (rounded down: conservative)
     for rank, (r, c) in enumerate(candidates):
-        comp, _ = ndimage.label(located & (s >= s[r, c] - max(dip * s[r, c], dip_abs * top)))
+        level = int(np.floor((s[r, c] - max(dip * s[r, c], dip_abs * top)) / (LEVEL_STEP * top)))
+        if level not in components:
+            components[level] = ndimage.label(located & (s >= level * LEVEL_STEP * top))[0]
+        comp = components[level]
         here = comp[r, c]
         if not any(comp[p] == here for p in candidates[:rank]):
             peaks.append((r, c))
@@ -330,12 +337,16 @@ def _typical(x: np.ndarray, scale: float) -> np.ndarray:
 
 
 def _short_fit(model: Any, x0: np.ndarray, scale: float | None = None) -> dict:
-    """A 30-evaluation linear-loss fit (``full``'s short fit) of a one- or several-lamp model."""
+    """A linear-loss fit of a one- or several-lamp model: ``full``'s short fit (30 evaluations), 100 for several lamps.
+
+    Several lamps need more: a two-lamp start from a dim lamp's residual was still 10⁹ times the
+    optimum's χ² after 30 evaluations (and another family's, stuck nearer, won the choice).
+    """
     lower, upper = _bounds(len(x0))
     x0 = np.clip(x0, lower, upper)
     scale = float(np.linalg.norm(x0[:3])) if scale is None else scale
     return robust_fit(model.residuals, x0, typical=_typical(x0, scale), lower=lower, upper=upper, loss="linear",
-                      f_scale=1.0, jac=model.jacobian, max_nfev=30)
+                      f_scale=1.0, jac=model.jacobian, max_nfev=100 if len(x0) > 7 else 30)
 
 
 def _convert_roughness(x: np.ndarray, src: str, dst: str) -> np.ndarray:
