@@ -419,23 +419,31 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
             regional[i] = _region_start(obs, found.labels == i + 1, std_img, n_starts=int(n_starts), starts=_starts)
         return regional[i]
 
+    def residual_start(x: np.ndarray, family: str) -> np.ndarray | None:
+        """A start at the brightest highlight of what the lamps of ``x`` (in ``family``) leave unexplained."""
+        unweighted = SeveralLampModel(PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use],
+                                                     lobe=family), (len(x) - 1) // 6)
+        left = np.zeros_like(obs.specular)
+        left[use] = -unweighted.residuals(x).reshape(-1, 3)
+        return _region_start(dataclasses.replace(obs, specular=left), segment_highlights(left, use).labels == 1,
+                             std_img, n_starts=int(n_starts), starts=_starts)
+
+    # Torrance–Sparrow starts are carried from two fits of k − 1 lamps: the chosen family's, and the
+    # Torrance–Sparrow short fit's (when one lamp too few is fitted, the chosen family can be one whose
+    # lobe widened to cover the missing lamp's highlight, and its residual then shows no lobe)
+    ts = {1: (highlight_start(0), "torrance_sparrow")} if "torrance_sparrow" in families else {}
     for k in range(2, k_max + 1):
-        previous = fits[k - 1]
-        if k <= len(found.peaks):
-            new = highlight_start(k - 1)
-        else:  # past the highlights: the brightest part of what the k − 1 lamps leave unexplained
-            unweighted = SeveralLampModel(PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use],
-                                                         lobe=previous["lobe"]), k - 1)
-            left = np.zeros_like(obs.specular)
-            left[use] = -unweighted.residuals(previous["x"]).reshape(-1, 3)
-            new = _region_start(dataclasses.replace(obs, specular=left), segment_highlights(left, use).labels == 1,
-                                std_img, n_starts=int(n_starts), starts=_starts)
-        candidates = []  # Torrance–Sparrow starts: the k − 1 lamps and the new one, and every highlight's own
-        if new is not None:
-            carried = _convert_roughness(previous["x"], previous["lobe"], "torrance_sparrow")
-            candidates.append(np.concatenate([carried[:-1], new[:6], carried[-1:]]))
+        carriers = [(fits[k - 1]["x"], fits[k - 1]["lobe"])] + ([ts[k - 1]] if k - 1 in ts else [])
+        candidates = []
+        for x, family in carriers:
+            if x is None:
+                continue
+            new = highlight_start(k - 1) if k <= len(found.peaks) else residual_start(x, family)
+            if new is not None:
+                carried = _convert_roughness(x, family, "torrance_sparrow")
+                candidates.append(np.concatenate([carried[:-1], new[:6], carried[-1:]]))
         own = [highlight_start(i) for i in range(k)] if k <= len(found.peaks) else []
-        if own and all(o is not None for o in own):  # a one-lamp fit to several lobes can widen its lobe to cover them
+        if own and all(o is not None for o in own):  # every highlight's own start
             candidates.append(np.concatenate([*(o[:6] for o in own), own[0][-1:]]))
         if not candidates:
             break
@@ -447,6 +455,8 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
                 c = m.chi2(xf)
                 if fam not in shorts or c < shorts[fam][1]:
                     shorts[fam] = (xf, c)
+        if "torrance_sparrow" in shorts:
+            ts[k] = (shorts["torrance_sparrow"][0], "torrance_sparrow")
         fam = min(shorts, key=lambda f: shorts[f][1])
         model = SeveralLampModel(base.with_lobe(fam), k)
         xs = shorts[fam][0]
