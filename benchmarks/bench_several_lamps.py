@@ -32,7 +32,7 @@ import numpy as np
 
 from nearlight.estimator import estimate
 from nearlight.evaluation.metrics import highlight_point, lamp_position_error_pct
-from nearlight.generator.analytic import analytic_capture, analytic_capture_lamps
+from nearlight.generator.analytic import analytic_capture_lamps
 from nearlight.generator.noise import add_camera_noise
 
 NOISE = {

@@ -89,7 +89,8 @@ def segment_highlights(specular: np.ndarray, located: np.ndarray, *, smooth_px: 
     first. A candidate is a highlight when the connected component of
     ``{smoothed ≥ its height − max(dip × its height, dip_abs × brightest)}``
     that holds it contains no brighter candidate (its topographic prominence
-    is at least that; the level rounded down to :data:`LEVEL_STEP`). Pixels are assigned to highlights by a watershed of the smoothed
+    is at least that; the level rounded down to :data:`LEVEL_STEP`). Pixels
+    are assigned to highlights by a watershed of the smoothed
     image from the peaks (:func:`scipy.ndimage.watershed_ift`).
 
     Parameters
@@ -193,7 +194,7 @@ class SeveralLampModel:
         return sum(self._one.residuals(self.lamp_params(x, i)) for i in range(self.k)) - self._observed
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
-        """Analytic ``∂ residuals / ∂ x``, shape ``(n · 3, 6K + 1)``: each lamp's block, the roughness columns summed."""
+        """Analytic ``∂ residuals / ∂ x``, shape ``(n · 3, 6K + 1)``: each lamp's block, roughness columns summed."""
         J = np.zeros((len(self._observed), self.n_params))
         for i in range(self.k):
             Ji = self._one.jacobian(self.lamp_params(x, i))
@@ -214,7 +215,7 @@ class SeveralLampModel:
         return out
 
     def lamp_peaks(self, x: np.ndarray) -> np.ndarray:
-        """Each lamp's largest (weighted) radiance over the pixels, mean over channels, shape (K,)."""
+        """Each lamp's largest radiance over the pixels (weighted, if the model is), mean over channels, shape (K,)."""
         return np.array([np.max(self._one.residuals(self.lamp_params(x, i)).reshape(-1, 3).mean(axis=-1))
                          for i in range(self.k)])
 
@@ -410,8 +411,7 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
 
     s1 = one.stages["full"]
     x1 = np.concatenate([s1["lamp_position"], s1["ks"], [s1["roughness"]]])
-    fits = {1: {"x": x1, "lobe": s1["lobe"], "chi2": s1["chi2"], "cov": s1["covariance_7"],
-                **{k: s1[k] for k in ("f_scale", "cost", "nfev", "status", "rms")}}}
+    fits = {1: {"x": x1, "lobe": s1["lobe"], "chi2": s1["chi2"]}}  # K = 1 is returned as ``one`` itself
     regional: dict[int, np.ndarray | None] = {}
 
     def highlight_start(i: int) -> np.ndarray | None:
@@ -491,7 +491,7 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
         "lamps": [{"position": x[6 * i : 6 * i + 3].tolist(), "colour": x[6 * i + 3 : 6 * i + 6].tolist()}
                   for i in order],
         "n_lamps": k, "lamps_option": lamps,
-        "covariance_params": [f"{p}{i}" for i in order for p in ("x", "y", "z", "colour_r", "colour_g", "colour_b")]
+        "covariance_params": [f"{p}{j}" for j in range(k) for p in ("x", "y", "z", "colour_r", "colour_g", "colour_b")]
         + ["roughness"],
         **{key: fit[key] for key in ("f_scale", "cost", "nfev", "status", "rms", "chi2")},
         "lobe": family, "bsdf": {"model": family, spec.colour_key: colour, spec.roughness_key: x[-1]},
