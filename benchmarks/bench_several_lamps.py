@@ -17,6 +17,10 @@ median and worst lamp error (% of each true lamp's distance from its
 highlight point, the nearest estimated lamp; captures with the right count),
 and the mean run time. Printed, not asserted.
 
+Measured (5 seeds, 2 shared cores, 391 s): right count 100 % in every row;
+``two`` median/worst error 0.000/0.000 % noise-free, 0.117/0.150 % low,
+0.261/0.499 % high; ``two-dim`` 0.095/0.207 % low, 0.218/0.659 % high.
+
 Usage::
 
     .venv/bin/python benchmarks/bench_several_lamps.py --seeds 10

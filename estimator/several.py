@@ -15,6 +15,19 @@ each highlight gives a start (the paper's peak ray and t search on that
 highlight's pixels, then ``full``'s multi-start along it). ``lamps="auto"``
 fits K = 1 … min(highlights + 1, :data:`MAX_LAMPS`) and keeps the K of the
 smallest Bayesian information criterion (:func:`lamp_count_evidence`).
+
+The sum assumes the separated specular of several lamps is the sum of theirs:
+true where their highlights do not overlap or their light is polarized alike
+(docs/capture-format.md, "Several lamps": Stokes vectors add, so where
+differently polarized highlights overlap ``Imax − Imin`` is less than the sum).
+
+Measured (``benchmarks/bench_several_lamps.py``, 160 × 120 analytic captures,
+5 seeds per noise level): the count was right on every capture, two equal
+lamps 30° apart (and a second lamp at a quarter of the intensity) and one
+lamp on a board, a near board and a sphere, noise-free, low and high noise;
+two-lamp errors (% of each lamp's distance from its highlight point) median
+0.12 % / worst 0.15 % at low noise, 0.26 % / 0.50 % at high, 1e-6 % noise-free;
+the Mitsuba render of scenes/two_lamps.yaml, 0.19 % each.
 """
 
 from __future__ import annotations
