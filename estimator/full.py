@@ -24,10 +24,10 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import AfterValidator
+from pydantic import AfterValidator, Field
 
 from ..capture import Capture
 from ..errors import UserError
@@ -38,6 +38,7 @@ from .observation import THRESHOLD, Observation, observe
 from .options import Choice, Count, CountOrZero, Positive, forwards
 from .paper import RaySearch, ray_stage, stage_one
 from .separation import SEPARATION_METHODS
+from .several import MAX_LAMPS, several_estimate, several_highlights_warning
 from .pixels import fit_pixels
 from .result import Estimate
 from ..physics.reflectance import LOBES, normalize, peak_shape, roughness_for_ts_sigma, shading_geometry, ts_sigma
@@ -60,6 +61,8 @@ REFIT_EVIDENCE = 50.0
 
 #: ``full``'s ``lobe`` option.
 LobeChoice = Annotated[str, AfterValidator(_lobe_choice)]
+#: ``full``'s ``lamps`` option: a number of lamps, or ``auto``.
+LampCount = Annotated[int, Field(ge=1, le=MAX_LAMPS)] | Literal["auto"]
 #: Pixel-weight models of ``full``'s ``noise`` option.
 NOISE_MODELS = ("none", "auto")
 
@@ -224,6 +227,13 @@ def _starts(init: Estimate, obs: Observation, *, n_starts: int) -> list[np.ndarr
     return starts
 
 
+def _with_warning(diagnostics: dict, warning: str | None) -> dict:
+    """``diagnostics`` with ``warning`` appended to its ``warnings`` list (no key at all without one)."""
+    if warning is None:
+        return diagnostics
+    return {**diagnostics, "warnings": [*diagnostics.get("warnings", []), warning]}
+
+
 def _chi2(model: PointLampModel, x: np.ndarray) -> float:
     """Sum of squared (weighted) residuals at ``x``."""
     return float(np.sum(np.square(model.residuals(x))))
@@ -241,6 +251,7 @@ def full_estimate(
     saturation: Positive | None = None,
     n_starts: CountOrZero = 6,
     separation: Choice(SEPARATION_METHODS) = "projected",
+    lamps: LampCount = 1,
     **init_options,
 ) -> Estimate:
     """Method ``full``: ``paper-init``, then a weighted robust fit of lamp position, Ks and roughness.
@@ -332,6 +343,13 @@ def full_estimate(
         Extra starting distances along the peak ray (see :func:`_starts`);
         the start with the lowest least-squares cost after a short fit (on
         at most ~:data:`TRIAL_PIXELS` of the fitted pixels) wins.
+    lamps : int or "auto"
+        Number of point lamps fitted: 1 (the default: the fit above), K ≤
+        :data:`~nearlight.estimator.several.MAX_LAMPS`, or ``"auto"`` (the count
+        of least BIC); see :func:`~nearlight.estimator.several.several_estimate`.
+        With one lamp, an image of several separate highlights
+        (:func:`~nearlight.estimator.several.segment_highlights`) adds a line to
+        ``diagnostics["warnings"]``.
     **init_options
         Options of :func:`~nearlight.estimator.paper.stage_one`: ``threshold``
         for the observation, the others for its ray stage, which runs on
@@ -352,6 +370,10 @@ def full_estimate(
     """
     if loss not in LOSSES:
         raise UserError(f"option loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
+    if lamps != 1:
+        return several_estimate(capture, lamps=lamps, lobe=lobe, noise=noise, loss=loss, f_scale=f_scale,
+                                max_pixels=max_pixels, saturation=saturation, n_starts=n_starts,
+                                separation=separation, **init_options)
     clock = time.perf_counter()
     obs = observe(capture, separation=separation, threshold=init_options.pop("threshold", THRESHOLD))
     seconds = time.perf_counter() - clock
@@ -427,7 +449,7 @@ def full_estimate(
         sigma=per_roughness * x[6],
         covariance=cov4,
         stages={"init": init.stages["init"], "full": stage},
-        diagnostics={**init.diagnostics, "n_specular_pixels": int(obs.mask.sum()),
-                     "n_start_pixels": int(start.mask.sum())},
+        diagnostics=_with_warning({**init.diagnostics, "n_specular_pixels": int(obs.mask.sum()),
+                                   "n_start_pixels": int(start.mask.sum())}, several_highlights_warning(obs)),
         timings=timings,
     )
