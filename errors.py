@@ -32,7 +32,7 @@ class UserError(Exception):
 EXTRAS = {
     "render": ("the renderer", ("mitsuba", "drjit")),
     "cluster": ("the cluster", ("dask", "distributed")),
-    "rig": ("the rig import (polanalyser, OpenCV; trimesh and Embree for meshes)", ("polanalyser", "cv2", "trimesh", "embreex")),
+    "rig": ("the rig import (polanalyser, OpenCV, trimesh)", ("polanalyser", "cv2", "trimesh")),  # embreex: x86-64 only, rig/mesh.py says so
 }
 
 
