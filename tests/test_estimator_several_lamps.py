@@ -21,7 +21,7 @@ from nearlight.estimator.full import PointLampModel
 from nearlight.estimator.fitting import central_jacobian
 from nearlight.estimator.paper import stage_one
 from nearlight.estimator.several import SeveralLampModel, highlights_of
-from nearlight.evaluation.metrics import highlight_point, lamp_position_error_pct, lamp_scores
+from nearlight.evaluation.metrics import lamp_scores
 from nearlight.generator.analytic import analytic_capture, analytic_capture_lamps
 from nearlight.generator.noise import add_camera_noise
 
@@ -38,13 +38,10 @@ def two():
 
 
 def lamp_errors_pct(capture, est) -> list[float]:
-    """Per true lamp, the error (% of its distance from its highlight point) of the nearest estimated lamp."""
-    found = [lamp["position"] for lamp in est.stages["full"]["lamps"]]
-    out = []
-    for lamp in capture.truth["lamps"]:
-        origin = highlight_point(capture.P, capture.N, capture.camera.position, lamp["position"])
-        out.append(min(lamp_position_error_pct(p, lamp["position"], origin=origin) for p in found))
-    return out
+    """Per true lamp, the error (% of its distance from its highlight point) of the estimated lamp matched
+    to it (:func:`nearlight.evaluation.metrics.lamp_scores`; NaN when missed)."""
+    s, n = lamp_scores(capture, est), len(capture.truth["lamps"])
+    return [s["lamp_position_error_pct"]] if n == 1 else [s[f"lamp{i}_position_error_pct"] for i in range(n)]
 
 
 def test_several_lamp_model_composes_the_one_lamp_model(rng):
