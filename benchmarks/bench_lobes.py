@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 from scipy.stats import binomtest, chi2
@@ -76,18 +75,14 @@ def fit(cap, **options):
 
 
 def pplastic_board(w: int, h: int):
-    """The §4.1 board (``scenes/ts_board.yaml``) rendered by Mitsuba with its polarized plastic.
+    """The §4.1 board (``scenes/ts_board.yaml``) rendered by Mitsuba with its polarized plastic:
+    ``benchmarks/bench_render_compare.py``'s ``pplastic`` material (its Beckmann-equivalent
+    σ = 0.10, the board's diffuse albedo), the scene's own sample count."""
+    from bench_render_compare import MATERIALS, SCENE  # its sibling script: one home for the material
 
-    ``alpha = √2 · σ`` of the shipped board (Beckmann-equivalent width
-    ``σ = 0.10``, as ``benchmarks/bench_render_compare.py`` sets it), the
-    board's diffuse albedo, the scene's own sample count.
-    """
     from nearlight.generator import load_scene, render_clean
 
-    material = {"model": "mitsuba", "bsdf": {"type": "pplastic", "alpha": float(np.sqrt(2.0) * 0.10),
-                                             "diffuse_reflectance": {"type": "rgb", "value": [0.30, 0.20, 0.15]}}}
-    path = Path(__file__).resolve().parents[1] / "scenes" / "ts_board.yaml"
-    scene = load_scene(path, overrides={"camera.resolution": [w, h], "material": material})
+    scene = load_scene(SCENE, overrides={"camera.resolution": [w, h], "material": MATERIALS["pplastic"]})
     return render_clean(scene, progress=False)
 
 
