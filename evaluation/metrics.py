@@ -58,9 +58,11 @@ ESTIMATE_COLUMNS = ("est_lamp_x_m", "est_lamp_y_m", "est_lamp_z_m", "est_sigma",
 #: estimates matched to no true lamp (:mod:`nearlight.evaluation.matching`). 1, 1, 0, 0 for a one-lamp
 #: method on a one-lamp capture.
 LAMP_COUNT_COLUMNS = ("n_lamps_true", "n_lamps_found", "lamps_missed", "lamps_extra")
+#: Separate highlights in a several-lamp capture's noise-free specular image (its rows only).
+HIGHLIGHTS_COLUMN = "highlights_true"
 #: Other numeric columns of a row (not compared as regressions).
 INFO_COLUMNS = ("distance_signed_m", "lamp_distance_true_m", "sigma_truth", "crlb_lamp_m", "crlb_sigma_rel",
-                *ESTIMATE_COLUMNS, *LAMP_COUNT_COLUMNS)
+                *ESTIMATE_COLUMNS, *LAMP_COUNT_COLUMNS, HIGHLIGHTS_COLUMN)
 
 
 def _vec(x: Any) -> np.ndarray:
@@ -459,7 +461,8 @@ def lamp_scores(capture: Any, estimate: Any) -> dict[str, Any]:
         ``direction_error_deg``, ``distance_error_m``, ``distance_signed_m``,
         ``lamp_distance_true_m`` (with several lamps, the nearest lamp's
         distance from its highlight), the :data:`LAMP_COUNT_COLUMNS`, and with
-        several true lamps the per-lamp columns (:data:`PER_LAMP_COLUMN`).
+        several true lamps the per-lamp columns (:data:`PER_LAMP_COLUMN`) and
+        ``highlights_true`` (:func:`_highlights_true`).
     """
     from .matching import gate_radii, match_lamps
 
@@ -486,10 +489,29 @@ def lamp_scores(capture: Any, estimate: Any) -> dict[str, Any]:
     out.update(n_lamps_true=float(len(lamps)), n_lamps_found=float(len(found)),  # floats, as every column
                lamps_missed=float(len(matching.missed)), lamps_extra=float(len(matching.extra)))
     if len(lamps) > 1:
+        out[HIGHLIGHTS_COLUMN] = _highlights_true(capture)
         for j, p in enumerate(per_lamp):
             out[f"lamp{j}_position_error_m"] = p["lamp_position_error_m"]
             out[f"lamp{j}_position_error_pct"] = p["lamp_position_error_pct"]
     return out
+
+
+def _highlights_true(capture: Any) -> float:
+    """Separate highlights in the noise-free specular image (``extra["truth_specular"]``), NaN without one.
+
+    The count of :func:`~nearlight.estimator.several.segment_highlights` (the
+    estimators' own segmentation, at its default dip) over pixels with a
+    surface point: where two lamps' highlights have merged into one blob it
+    reads 1, so a sweep over their separation shows where they merge beside
+    which methods still find both lamps.
+    """
+    from ..estimator.several import segment_highlights
+
+    specular = capture.extra.get("truth_specular")
+    if specular is None:
+        return math.nan
+    located = np.all(np.isfinite(capture.P), axis=-1)
+    return float(len(segment_highlights(np.asarray(specular, dtype=float), located).peaks))
 
 
 def score(capture: Any, estimate: Any) -> dict[str, float]:

@@ -10,7 +10,11 @@ when the sweep has an ``object`` axis (a nuisance may break a method on a board
 and not on a sphere, and a pooled median would hide it); other axes are pooled.
 A failed task (``status`` error, or a NaN error: no usable estimate) is not
 dropped: it counts as an error worse than any other, so a label on which most
-runs fail shows a failed median, and every cell says how many failed.
+runs fail shows a failed median, and every cell says how many failed. A run
+that found too few lamps (a several-lamp capture with a true lamp left
+unmatched, :mod:`~nearlight.evaluation.matching`: its worst-lamp error is NaN)
+counts the same way but is named for what it is, ``missed`` (a lamp), not
+``failed`` (the method ran and answered).
 Beside the table, a heatmap (labels × methods, log colour scale).
 """
 
@@ -75,8 +79,11 @@ def label_table(df: pd.DataFrame, axis: str) -> pd.DataFrame:
         Long table, one row per (object,) label and method, labels and methods in
         the order of the sweep's tasks: ``axis``, ``object`` (empty without an
         object axis), ``label``, ``method``, ``n`` (rows), ``seeds`` (distinct
-        seeds), ``failed`` (rows without an error: failed task or NaN), ``median``
-        and ``p90`` (% of the lamp distance; failures count as +inf, see
+        seeds), ``failed`` (rows without an error: failed task or NaN, but
+        not ``missed``), ``missed`` (successful rows of a several-lamp capture
+        that left a true lamp unmatched: ``n_lamps_true`` > 1, ``lamps_missed``
+        > 0; on a one-lamp capture a NaN error is no usable estimate: failed), ``median`` and ``p90`` (% of the
+        lamp distance; failed and missed rows count as +inf, see
         :func:`quantile_failures_worst`).
     """
     df = df.sort_values("task_index")
@@ -89,29 +96,46 @@ def label_table(df: pd.DataFrame, axis: str) -> pd.DataFrame:
                 g = part[(part[axis] == label) & (part["method"] == method)]
                 if g.empty:
                     continue
-                err = np.where(g["status"] == "ok", g[METRIC].astype(float), np.nan)
+                ok = (g["status"] == "ok").to_numpy()
+                err = np.where(ok, g[METRIC].astype(float), np.nan)
+                several = (g["n_lamps_true"].fillna(1).to_numpy() > 1) if "n_lamps_true" in g else False
+                missed = ok & np.isnan(err) & several & (g["lamps_missed"].fillna(0).to_numpy() > 0 if
+                                                         "lamps_missed" in g else False)
                 rows.append({"axis": axis, "object": obj, "label": label, "method": method, "n": len(g),
-                             "seeds": g["seed"].nunique(), "failed": int(np.isnan(err).sum()),
-                             "median": quantile_failures_worst(err, 50), "p90": quantile_failures_worst(err, 90)})
-    return pd.DataFrame(rows, columns=["axis", "object", "label", "method", "n", "seeds", "failed", "median", "p90"])
+                             "seeds": g["seed"].nunique(), "failed": int(np.isnan(err).sum() - missed.sum()),
+                             "missed": int(missed.sum()), "median": quantile_failures_worst(err, 50),
+                             "p90": quantile_failures_worst(err, 90)})
+    return pd.DataFrame(rows, columns=["axis", "object", "label", "method", "n", "seeds", "failed", "missed",
+                                       "median", "p90"])
 
 
-def _number(x: float) -> str:
-    return "failed" if math.isinf(x) else f"{x:.3g}"
+def _number(x: float, word: str) -> str:
+    return word if math.isinf(x) else f"{x:.3g}"
 
 
 def cell_text(row: pd.Series, *, compact: bool = False) -> str:
-    """One cell: ``median``, ``median (p90)`` over several rows, and how many of them failed.
+    """One cell: ``median``, ``median (p90)`` over several rows, and how many of them failed or missed a lamp.
 
-    ``k/n failed`` alone when the median failed; ``compact`` (the heatmap) writes ``×k`` for
-    ``, k/n failed`` after a median.
+    ``k/n failed`` (and/or ``k/n missed a lamp``) alone when the median is
+    one of them; after a median, ``, k/n failed`` and ``, k/n missed a lamp``;
+    ``compact`` (the heatmap) writes ``×k`` and ``−k`` for those. A percentile
+    that falls on such a row reads ``failed``, or ``missed`` when no row failed.
     """
+    missed = int(row.get("missed", 0))
+    counts = [(row["failed"], "failed", "×"), (missed, "missed a lamp", "−")]
     if math.isinf(row["median"]):
-        return f"{row['failed']}/{row['n']} failed"
-    text = _number(row["median"]) + (f" ({_number(row['p90'])})" if row["n"] > 1 else "")
-    if row["failed"]:
-        text += f" ×{row['failed']}" if compact else f", {row['failed']}/{row['n']} failed"
+        return ", ".join(f"{k}/{row['n']} {word}" for k, word, _ in counts if k)
+    word = "missed" if missed and not row["failed"] else "failed"
+    text = _number(row["median"], word) + (f" ({_number(row['p90'], word)})" if row["n"] > 1 else "")
+    for k, long, short in counts:
+        if k:
+            text += f" {short}{k}" if compact else f", {k}/{row['n']} {long}"
     return text
+
+
+def _two_five(v: float, _pos: int) -> str:
+    """A colour-bar minor tick's label: ``v`` when it is 2 or 5 times a power of ten, else none."""
+    return f"{v:g}" if v > 0 and round(v / 10 ** math.floor(math.log10(v))) in (2, 5) else ""
 
 
 def markdown_tables(table: pd.DataFrame, axis: str) -> list[tuple[str, pd.DataFrame]]:
@@ -127,7 +151,7 @@ def markdown_tables(table: pd.DataFrame, axis: str) -> list[tuple[str, pd.DataFr
 def plot_heatmap(table: pd.DataFrame, axis: str, path: Path) -> None:
     """PNG: labels × methods, colour the median :data:`METRIC` (log scale), one panel per object.
 
-    Cells are annotated with :func:`cell_text` (compact); a failed median is a grey cell.
+    Cells are annotated with :func:`cell_text` (compact); a failed (or missed) median is a grey cell.
     """
     import matplotlib
 
@@ -168,7 +192,8 @@ def plot_heatmap(table: pd.DataFrame, axis: str, path: Path) -> None:
     bar = fig.colorbar(image, ax=axs[0].tolist(), location="bottom", shrink=0.5, aspect=40, pad=0.01,
                        label=f"median {METRIC} [{METRICS[METRIC]}]")
     bar.ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-    bar.ax.xaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}") if hi / lo < 30 else NullFormatter())
-    fig.suptitle(f"Which imperfection breaks which method ({axis}): median (90th percentile) over runs; "
-                 "×k: k runs failed; grey: half or more failed", fontsize=9)
+    # minor ticks labelled at 2 and 5 × a power of ten only (every one of them crowds within a decade)
+    bar.ax.xaxis.set_minor_formatter(FuncFormatter(_two_five) if hi / lo < 30 else NullFormatter())
+    fig.suptitle(f"Which imperfection breaks which method ({axis}): median (90th percentile) over runs\n"
+                 "×k: k runs failed; −k: k missed a lamp; grey: half or more did either", fontsize=9)
     save_png(fig, path, dpi=110)

@@ -164,6 +164,49 @@ def lamp_table(df: pd.DataFrame) -> pd.DataFrame:
     return t.astype({c: int for c in int_cols}).reset_index()
 
 
+def lamps_by_label(df: pd.DataFrame, axis: str) -> pd.DataFrame:
+    """Per label of a one-at-a-time ``axis`` and method: how often every lamp was found, and the highlights in the image.
+
+    Where the two highlights of a separation sweep merge (``highlights``
+    drops to 1) and which method still finds every lamp there: the "merge
+    point" of each method is the label below which its count falls.
+
+    Returns
+    -------
+    DataFrame
+        Long table in the sweep's order, one row per label and method of the
+        labels with several true lamps: ``axis``, ``label``, ``method``,
+        ``tasks``, ``all_found`` (successful tasks with nothing missed and
+        nothing extra; failed ones count as not found) and ``highlights``
+        (median of ``highlights_true`` over the label's rows, the separate
+        highlights of the noise-free specular image; NaN where not
+        measured). Empty when ``df`` has no several-lamp rows.
+    """
+    if "n_lamps_true" not in df:
+        return pd.DataFrame()
+    several = df[df[axis].isin(set(df.loc[df["n_lamps_true"] > 1, axis]))]  # failed rows have no count: by label
+    if several.empty:
+        return pd.DataFrame()
+    several = several.sort_values("task_index")
+    clean = (several["status"] == "ok") & (several["lamps_missed"] == 0) & (several["lamps_extra"] == 0)
+    rows = []
+    for label, g in several.groupby(axis, sort=False):
+        seen = float(g["highlights_true"].median()) if "highlights_true" in g else np.nan
+        for method, m in g.groupby("method", sort=False):
+            rows.append({"axis": axis, "label": label, "method": method, "tasks": len(m),
+                         "all_found": int(clean[m.index].sum()), "highlights": seen})
+    return pd.DataFrame(rows)
+
+
+def _lamps_by_wide(table: pd.DataFrame) -> pd.DataFrame:
+    """:func:`lamps_by_label`'s table for the summary: rows the labels, ``highlights``, a ``k/n`` column per method."""
+    wide = table.assign(cell=table["all_found"].astype(str) + "/" + table["tasks"].astype(str)).pivot_table(
+        index="label", columns="method", values="cell", aggfunc="first", sort=False)
+    seen = table.groupby("label", sort=False)["highlights"].first()
+    axis = table["axis"].iloc[0]
+    return pd.concat([seen, wide], axis=1).rename_axis(index=axis, columns=None).reset_index()
+
+
 def plot_lamps(table: pd.DataFrame, path: Path) -> None:
     """PNG: missed and extra lamps per method (bars), beside the true lamps they are out of."""
     import matplotlib
@@ -205,7 +248,12 @@ def report_files(varied: list[str], labelled: list[str] = (), luck: bool = False
         files.update({"luck.csv": "report-csv", LUCK_PNG: "png"})
     if lamps:
         files.update({"lamps.csv": "report-csv", "lamps.png": "png"})
+        files.update({_lamps_by_name(a): "report-csv" for a in labelled})
     return files
+
+
+def _lamps_by_name(axis: str) -> str:
+    return f"lamps_by_{axis.replace('.', '_')}.csv"
 
 
 def _png_name(axis: str) -> str:
@@ -279,6 +327,16 @@ def write_report(
                "read them with `missed` here. `all_found`: tasks with nothing missed and nothing extra; "
                "`lamp<i>_median_error_pct`: true lamp i's median error where it was matched.", "",
                _md(lamps), "", "![lamps matched, missed and extra](lamps.png)", ""]
+        for a in labelled:
+            by = lamps_by_label(df, a)
+            if by.empty:
+                continue
+            _write_text(folder / _lamps_by_name(a), by.to_csv(index=False))
+            md += [f"### Every lamp found, by {a}", "",
+                   "`highlights`: separate highlights in the noise-free specular image (the estimators' "
+                   "segmentation, `nearlight.estimator.several.segment_highlights`; 1 where the lamps' highlights "
+                   "have merged into one blob); per method, the tasks that found every lamp and nothing extra, "
+                   "of its tasks (failed ones count as not found).", "", _md(_lamps_by_wide(by)), ""]
     tables = [label_table(df, a) for a in labelled]
     if tables:
         _write_text(folder / "one_at_a_time.csv", pd.concat(tables, ignore_index=True).to_csv(index=False))
@@ -290,7 +348,8 @@ def write_report(
                + (f", pooled over {', '.join(pooled)}" if pooled else "") + ". A failed task (an error, or no "
                "usable estimate: a NaN error) counts as worse than any error: a cell reads `k/n failed` when "
                "k of its n runs failed and that is half or more (the median is a failure); fewer failures are "
-               "counted after the median (`, k/n failed`).", ""]
+               "counted after the median (`, k/n failed`). A run that left a true lamp unmatched (several lamps) "
+               "counts the same way and reads `missed a lamp`.", ""]
         for obj, wide in markdown_tables(table, a):
             md += ([f"### {obj}", ""] if obj else []) + [_md(wide), ""]
         plot_heatmap(table, a, folder / _heatmap_name(a))

@@ -109,6 +109,16 @@ def test_both_lamps_found(two_lamps):
     assert 0.4 < row["lamp_distance_true_m"] < 0.6
 
 
+
+def test_highlights_true_counts_separate_highlights_and_merged_ones_as_one(two_lamps):
+    # the fixture's lamps 0.30 m apart light two separate highlights; 1 cm apart (the lobes, σ = 0.1,
+    # are ~10 cm wide on the board) they light one blob, which the segmentation sees as one
+    assert score(two_lamps, _est(LAMPS[0], lamp_positions=LAMPS))["highlights_true"] == 2.0
+    near = analytic_capture_lamps([{"position": [x, 0.2, 0.4]} for x in (0.005, -0.005)], width=80, height=60)
+    assert score(near, _est([0.0, 0.2, 0.4]))["highlights_true"] == 1.0
+    one = analytic_capture(width=80, height=60)
+    assert "highlights_true" not in score(one, truth_estimate(one))  # one-lamp rows keep their columns
+
 def test_worst_lamp_is_the_row_error(two_lamps):
     off = np.array([0.0, 0.0, 0.02])
     row = score(two_lamps, _est(LAMPS[0], lamp_positions=[LAMPS[0], np.add(LAMPS[1], 2 * off)]))
@@ -305,6 +315,22 @@ def test_lamp_table_and_compare_axes(two_lamps):
                                                                        truth_estimate(analytic_capture(width=80, height=60)))}])
     assert lamp_table(one_lamp).empty  # one-lamp sweeps: no lamps section, the report is as before
 
+
+
+def test_lamps_by_label_counts_every_lamp_found_per_label_and_method(two_lamps):
+    import pandas as pd
+
+    from nearlight.evaluation.report import lamps_by_label
+
+    both, one = score(two_lamps, _est(LAMPS[0], lamp_positions=LAMPS)), score(two_lamps, _est(LAMPS[1]))
+    rows = [{"set": "far", "method": "auto", "status": "ok", **both}, {"set": "far", "method": "one", "status": "ok", **one},
+            {"set": "far", "method": "auto", "status": "error"},  # a failed task: no counts, not found
+            {"set": "far", "method": "one", "status": "ok", **one}]
+    t = lamps_by_label(pd.DataFrame(rows).assign(task_index=range(4)), "set").set_index("method")
+    assert t.loc["auto", ["label", "tasks", "all_found", "highlights"]].tolist() == ["far", 2, 1, 2.0]
+    assert t.loc["one", ["tasks", "all_found"]].tolist() == [2, 0]
+    single = pd.DataFrame([{"set": "x", "method": "m", "status": "ok", "task_index": 0, "n_lamps_true": 1.0}])
+    assert lamps_by_label(single, "set").empty
 
 def test_report_shows_the_lamps_section_only_for_several_lamps(two_lamps, tmp_path):
     import pandas as pd

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from nearlight.evaluation.engine import run_sweep
-from nearlight.evaluation.one_at_a_time import label_table, quantile_failures_worst
+from nearlight.evaluation.one_at_a_time import cell_text, label_table, quantile_failures_worst
 from nearlight.evaluation.report import report_files, write_report
 from nearlight.evaluation.store import read_results
 from nearlight.evaluation.sweep import load_sweep
@@ -80,6 +80,24 @@ def test_label_table_keeps_file_order_splits_by_object_and_counts_failures():
     failed = cell.loc[("board", "jitter", "b")]
     assert (failed["n"], failed["failed"], failed["median"], failed["p90"]) == (3, 2, math.inf, math.inf)
 
+
+
+def test_a_run_that_missed_a_lamp_is_counted_as_missed_not_failed():
+    # several-lamp rows (evaluation.matching): a successful run leaving a true lamp unmatched has a NaN
+    # worst-lamp error and lamps_missed > 0; it ranks as a failure but the cell names it for what it is
+    rows = [{"set": "25 deg", "seed": s, "method": "auto", "status": st, "lamp_position_error_pct": e,
+             "n_lamps_true": 2.0, "lamps_missed": m} for s, (st, e, m) in enumerate([("ok", 0.5, 0), ("ok", np.nan, 1), ("ok", 0.7, 0),
+                                                                  ("error", np.nan, np.nan), ("ok", 0.6, 0)])]
+    t = label_table(pd.DataFrame(rows).assign(task_index=range(5)), "set")
+    row = t.iloc[0]
+    assert (row["n"], row["failed"], row["missed"], row["median"], row["p90"]) == (5, 1, 1, 0.7, math.inf)
+    assert cell_text(row) == "0.7 (failed), 1/5 failed, 1/5 missed a lamp"
+    assert cell_text(row, compact=True) == "0.7 (failed) ×1 −1"
+    # misses alone: the percentile that falls on one reads "missed"; a missed median is named alone
+    only = row.copy()
+    only["failed"] = 0
+    assert cell_text(only) == "0.7 (missed), 1/5 missed a lamp"
+    assert cell_text(only.replace({0.7: math.inf})) == "1/5 missed a lamp"
 
 @pytest.fixture(scope="module")
 def fakes(tmp_path_factory):
