@@ -170,12 +170,21 @@ def ts_specular_near(
     ks_ = np.broadcast_to(np.asarray(ks, dtype=float), (3,))
     if not _finite(lamp_position, ks_, sigma):
         return np.full((*P.shape[:-1], 3), np.nan)
+    return _near(P, N, camera_position, lamp_position, lambda l, v: _lobe_radiance(N, l, v, ks_, float(sigma)))
+
+
+def _near(P: np.ndarray, N: np.ndarray, camera_position: Any, lamp_position: Any, lobe: Any) -> np.ndarray:
+    """``lobe(l, v) / r²``: a unit-intensity near lamp's radiance from the lobe of unit directions ``(..., 3)``.
+
+    The one home of the near-lamp geometry of :func:`ts_specular_near` and
+    :func:`specular_near` (inputs already checked finite).
+    """
     d = np.asarray(lamp_position, dtype=float).reshape(3) - P
     r2 = np.sum(d * d, axis=-1)
     to_light = _unit(d)
     to_view = _unit(np.asarray(camera_position, dtype=float).reshape(3) - P)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        return _lobe_radiance(N, to_light, to_view, ks_, float(sigma)) / r2[..., None]
+        return lobe(to_light, to_view) / r2[..., None]
 
 
 def ts_specular_distant(N: np.ndarray, light_direction: Any, view_direction: Any, ks: Any, sigma: float) -> np.ndarray:
@@ -320,12 +329,8 @@ def specular_near(P: np.ndarray, N: np.ndarray, camera_position: Any, lamp_posit
     P, N = np.asarray(P, dtype=float), np.asarray(N, dtype=float)
     if not _renderable(model, colour, a, lamp_position):
         return np.full((*P.shape[:-1], 3), np.nan)
-    d = np.asarray(lamp_position, dtype=float).reshape(3) - P
-    r2 = np.sum(d * d, axis=-1)
-    to_light = _unit(d)
-    to_view = _unit(np.asarray(camera_position, dtype=float).reshape(3) - P)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        return _normalised_lobe_radiance(model, N, to_light, to_view, colour, a) / r2[..., None]
+    return _near(P, N, camera_position, lamp_position,
+                 lambda l, v: _normalised_lobe_radiance(model, N, l, v, colour, a))
 
 
 def specular_distant(N: np.ndarray, light_direction: Any, view_direction: Any, bsdf: Any) -> np.ndarray:
