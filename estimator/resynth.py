@@ -18,7 +18,9 @@ from ..physics.reflectance import specular_radiance
 
 
 def _point(P, N, camera, estimate: Estimate) -> np.ndarray:
-    bsdf = {"model": "torrance_sparrow", "ks": estimate.ks, "sigma": estimate.sigma}
+    stage = estimate.stages.get("full")
+    bsdf = stage.get("bsdf") if isinstance(stage, dict) else None  # the lobe family ``full`` fitted
+    bsdf = bsdf or {"model": "torrance_sparrow", "ks": estimate.ks, "sigma": estimate.sigma}
     return specular_radiance(P, N, camera, estimate.lamp_position, 1.0, bsdf)
 
 
@@ -38,6 +40,7 @@ def render_specular(capture: Capture, estimate: Estimate) -> np.ndarray:
 
     Uses the capture's ``P`` and ``N`` (normals from ``P`` when absent) and the
     estimate's model: a point lamp of unit intensity at ``lamp_position`` with
+    the lobe family ``full`` fitted (``stages["full"]["bsdf"]``), else
     Torrance–Sparrow ``ks`` (which absorbs the lamp intensity) and ``sigma``,
     or the distant baseline's light and view directions.
 

@@ -50,7 +50,7 @@ import pandas as pd
 from ..errors import UserError
 from ..files.atomic import write_json
 from .store import read_environments, read_manifest, read_results
-from .metrics import INFO_COLUMNS, METRICS, PER_LAMP_COLUMN
+from .metrics import INFO_COLUMNS, LOBE_COLUMN, METRICS, PER_LAMP_COLUMN
 
 #: Metrics compared (``runtime_s`` only on request; ``specular_rmse`` is in radiance units whose scale
 #: differs per scene, ``specular_rmse_rel`` carries the same information scale-free).
@@ -138,7 +138,7 @@ def _axes(df: pd.DataFrame, axes: Sequence[str] | None) -> list[str]:
     if axes is not None:
         return [a for a in axes if a in df.columns]
     skip = {"task_id", "task_index", "sweep", "seed", "noisy", "method", "render_key", "renderer", "code_version",
-            "status", "error", *METRICS, *INFO_COLUMNS}
+            "status", "error", LOBE_COLUMN, *METRICS, *INFO_COLUMNS}
     return [c for c in df.columns if c not in skip and not c.startswith("crlb_") and not PER_LAMP_COLUMN.match(c)]
 
 

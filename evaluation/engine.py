@@ -27,7 +27,7 @@ from .environment import code_version
 from ..errors import UserError
 from .store import MANIFEST, RENDERS, ResultStore, read_manifest, set_aside_damaged_parts
 from .sweep import Sweep, Task
-from .metrics import ESTIMATE_COLUMNS
+from .metrics import ESTIMATE_COLUMNS, LOBE_COLUMN
 from .tasks import noisy_capture, run_task
 
 
@@ -102,13 +102,26 @@ def task_captures(sweep: Sweep, task: Task, out: str | Path, cache_dir: str | Pa
 
 def row_estimate(row: Any) -> Any:
     """The :class:`~nearlight.estimator.Estimate` a result row records (lamp, σ, Ks; a point lamp),
-    to re-synthesise it (:func:`nearlight.estimator.render_specular`)."""
+    to re-synthesise it (:func:`nearlight.estimator.render_specular`).
+
+    A row whose :data:`~nearlight.evaluation.metrics.LOBE_COLUMN` names another family than
+    Torrance–Sparrow (``full``'s fitted lobe) gets that family's own BSDF back in
+    ``stages["full"]["bsdf"]`` (its σ and Ks columns are the Torrance–Sparrow equivalent:
+    :func:`~nearlight.physics.reflectance.convert_bsdf` inverts that), so the re-synthesis
+    shows the lobe that was fitted. Rows written before the column existed read as Torrance–Sparrow.
+    """
     import numpy as np
 
     from ..estimator import Estimate
+    from ..physics.reflectance import LOBES, convert_bsdf
 
     x, y, z, sigma, *ks = (float(row[c]) for c in ESTIMATE_COLUMNS)
-    return Estimate(method=str(row["method"]), lamp_position=np.array([x, y, z]), ks=np.array(ks), sigma=sigma)
+    est = Estimate(method=str(row["method"]), lamp_position=np.array([x, y, z]), ks=np.array(ks), sigma=sigma)
+    lobe = str(row.get(LOBE_COLUMN, "") or "torrance_sparrow") if hasattr(row, "get") else "torrance_sparrow"
+    if lobe != "torrance_sparrow" and lobe in LOBES and np.isfinite(sigma) and sigma > 0:
+        bsdf = convert_bsdf({"model": "torrance_sparrow", "ks": est.ks, "sigma": sigma}, lobe)
+        est.stages = {"full": {"lobe": lobe, "bsdf": bsdf}}
+    return est
 
 
 class _Deferred:

@@ -54,6 +54,11 @@ METRICS: dict[str, str] = {
 }
 #: The estimate itself (lamp position in m, σ in rad, Ks per channel), so a row can be re-synthesised.
 ESTIMATE_COLUMNS = ("est_lamp_x_m", "est_lamp_y_m", "est_lamp_z_m", "est_sigma", "est_ks_r", "est_ks_g", "est_ks_b")
+#: The lobe family the estimate's σ and Ks stand for (a string column): ``full``'s fitted family
+#: (``stages["full"]["lobe"]``), ``torrance_sparrow`` for every other method. σ and Ks are that family's
+#: Torrance–Sparrow equivalent (same head-on peak and small-angle width), so with this column a row gives
+#: back the fitted family's own BSDF (:func:`~nearlight.physics.reflectance.convert_bsdf`).
+LOBE_COLUMN = "est_lobe"
 #: Lamp counts of every row: true lamps, lamps the estimate reports, true lamps matched to no estimate,
 #: estimates matched to no true lamp (:mod:`nearlight.evaluation.matching`). 1, 1, 0, 0 for a one-lamp
 #: method on a one-lamp capture.
@@ -63,6 +68,14 @@ HIGHLIGHTS_COLUMN = "highlights_true"
 #: Other numeric columns of a row (not compared as regressions).
 INFO_COLUMNS = ("distance_signed_m", "lamp_distance_true_m", "sigma_truth", "crlb_lamp_m", "crlb_sigma_rel",
                 *ESTIMATE_COLUMNS, *LAMP_COUNT_COLUMNS, HIGHLIGHTS_COLUMN)
+
+
+def estimate_columns(estimate: Any) -> dict[str, Any]:
+    """A result row's record of ``estimate``: :data:`ESTIMATE_COLUMNS` (floats) and :data:`LOBE_COLUMN`."""
+    values = [*np.ravel(estimate.lamp_position), estimate.sigma, *np.broadcast_to(estimate.ks, (3,))]
+    stage = (getattr(estimate, "stages", None) or {}).get("full")
+    lobe = stage.get("lobe") if hasattr(stage, "get") else None
+    return {**dict(zip(ESTIMATE_COLUMNS, map(float, values))), LOBE_COLUMN: str(lobe or "torrance_sparrow")}
 
 
 def _vec(x: Any) -> np.ndarray:

@@ -38,9 +38,11 @@ BSDF dict in ``estimate.stages["full"]["bsdf"]``; its ``estimate.ks`` and
 small-angle width, which differs from a Ward or microfacet lobe away from the
 peak (a Ward fit graded through it misses by far more than its own fit error).
 So :func:`resynthesize` renders the fitted family's dict when there is one
-(:func:`fitted_bsdf`), and otherwise, for every other method and for result
-rows, the Torrance–Sparrow lobe of ``estimate.ks`` and ``estimate.sigma``,
-with the same code and numbers as before the families were added. A dict of
+(:func:`fitted_bsdf`; a result row's estimate gets it back from its
+``est_lobe`` column, :func:`~nearlight.evaluation.engine.row_estimate`), and
+otherwise, for every other method, the Torrance–Sparrow lobe of
+``estimate.ks`` and ``estimate.sigma``, with the same code and numbers as
+before the families were added. A dict of
 another model is refused (ValueError), never graded as something else.
 
 The models (``docs/physics.md``, "Lamp" and "Reflectance")
@@ -354,8 +356,8 @@ def specular_distant(N: np.ndarray, light_direction: Any, view_direction: Any, b
 def fitted_bsdf(estimate: Any) -> Any:
     """The BSDF dict of the lobe family ``full`` fitted (``estimate.stages["full"]["bsdf"]``), or None.
 
-    Any other estimate (every other method, a result row) has none and is
-    rendered from its Torrance–Sparrow ``ks`` and ``sigma``.
+    Any other estimate (every other method) has none and is rendered from
+    its Torrance–Sparrow ``ks`` and ``sigma``.
     """
     stage = (getattr(estimate, "stages", None) or {}).get("full")
     return stage.get("bsdf") if hasattr(stage, "get") else None

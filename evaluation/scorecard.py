@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import UserError
-from .metrics import ESTIMATE_COLUMNS, INFO_COLUMNS, METRICS, score
+from .metrics import INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
 from .suite import INPUT, TRUTH, checksum_problems, read_manifest, strip_truth
 
 #: Metric -> (thresholds, as the metric's values; label of a threshold). The lamp: % of the distance from
@@ -79,6 +79,7 @@ def score_case(case: Mapping[str, Any], *, method: str, options: Mapping[str, An
     row: dict[str, Any] = {"status": "ok", "error": ""}
     row.update(dict.fromkeys(METRICS, math.nan))
     row.update(dict.fromkeys(INFO_COLUMNS, math.nan))
+    row[LOBE_COLUMN] = ""
     stage = "read"
     try:
         seen = strip_truth(read_capture(Path(case["folder"]) / INPUT))
@@ -86,8 +87,7 @@ def score_case(case: Mapping[str, Any], *, method: str, options: Mapping[str, An
         t0 = time.perf_counter()
         est = run_method(seen, method, options)
         row["runtime_s"] = time.perf_counter() - t0
-        values = [*np.ravel(est.lamp_position), est.sigma, *np.broadcast_to(est.ks, (3,))]
-        row.update(zip(ESTIMATE_COLUMNS, map(float, values)))
+        row.update(estimate_columns(est))
         stage = "score"
         row.update(score(read_capture(Path(case["folder"]) / TRUTH), est))
     except Exception as exc:  # a failing case is a row (a miss), not a crashed run

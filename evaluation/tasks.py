@@ -16,9 +16,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from .metrics import ESTIMATE_COLUMNS, INFO_COLUMNS, METRICS, score
+from .metrics import INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
 
 
 def run_method(capture: Any, method: str, options: Mapping[str, Any]) -> Any:
@@ -71,6 +69,7 @@ def run_task(task: Mapping[str, Any], *, renderer: Any, cache_dir: str | None) -
     row: dict[str, Any] = {"status": "ok", "error": ""}
     row.update(dict.fromkeys(METRICS, math.nan))
     row.update(dict.fromkeys(INFO_COLUMNS, math.nan))
+    row[LOBE_COLUMN] = ""
     stage = "render"
     try:
         clean = renderer.render(task["scene"], cache_dir=None if cache_dir is None else Path(cache_dir))
@@ -80,8 +79,7 @@ def run_task(task: Mapping[str, Any], *, renderer: Any, cache_dir: str | None) -
         t0 = time.perf_counter()
         est = run_method(capture, task["method_spec"], task["options"])
         row["runtime_s"] = time.perf_counter() - t0
-        values = [*np.ravel(est.lamp_position), est.sigma, *np.broadcast_to(est.ks, (3,))]
-        row.update(zip(ESTIMATE_COLUMNS, map(float, values)))
+        row.update(estimate_columns(est))
         stage = "score"
         row.update(score(clean, est))
         stage = "crlb"
