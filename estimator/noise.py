@@ -32,6 +32,12 @@ squared. A floor keeps noise-free captures (whose residuals are float
 rounding) from weighing a few pixels by 1e10: the variance is at least
 ``(floor · peak specular)²``, the same 1e-4 of the peak that keeps the robust
 loss quadratic there.
+
+Dark pixels are not the model's: a sensor clips at zero, so where a pixel's
+readings lie within a few read-noise deviations of zero some were censored,
+the separated specular there is biased and its variance under the model is
+too small, which gives those pixels the largest weights
+(:func:`censored_pixels` leaves them out of the weighted fit).
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ from __future__ import annotations
 from typing import Any, NamedTuple
 
 import numpy as np
+from scipy import ndimage
 
 from ..physics.polarization import analyzer_matrix, aolp, linear_stokes
 from .separation import specular_gain
@@ -196,3 +203,58 @@ def specular_variance(capture: Any, specular: np.ndarray, noise: CameraNoise, *,
     rig = capture.rig
     gain = specular_gain(rig.analyzer_extinction_ratio, rig.lamp_polarizer_extinction_ratio)
     return np.maximum(var * gain**2, floor)
+
+
+#: A pixel is left out of the weighted fit when its mean reading over the analyzer angles, smoothed
+#: (Gaussian, CENSOR_SMOOTH_PX pixels), is below CENSOR_SIGMAS read-noise deviations in any channel.
+CENSOR_SIGMAS = 3.0
+CENSOR_SMOOTH_PX = 2.0
+
+
+def censored_pixels(capture: Any, noise: CameraNoise, surface: np.ndarray) -> np.ndarray:
+    """Surface pixels whose readings the sensor may have clipped at zero: out of the weighted fit.
+
+    A reading is ``max(0, signal + noise)``: where the signal is within a
+    few read-noise deviations ``√read_var`` of zero, some readings were
+    censored, their mean is biased upwards, and so is the separation built
+    on them, while the variance model calls those pixels the quietest and
+    weighs them most. Such pixels are those whose mean reading over the
+    analyzer angles is below :data:`CENSOR_SIGMAS` ``√read_var`` in any
+    channel; the mean is smoothed over ~:data:`CENSOR_SMOOTH_PX` pixels
+    (normalised over the surface), so which pixels are left out hardly
+    depends on their own noise (leaving out a pixel because its own draw
+    was low would bias the rest upwards). The mean reading, not the
+    smallest: a fully polarized specular with no diffuse (a black surface)
+    has a reading near zero at the crossed angle across its whole
+    highlight, which holds the lamp.
+
+    Measured (``benchmarks/bench_lobes.py``' captures, 160×120, σ = 0.1, 12
+    seeds, the fit naming the true family), lamp RMSE / CRLB without and
+    with this: GGX sphere at high noise 2.00 → 1.28 (mean error
+    (−3.3, −5.9, −12.4) → (−0.6, −1.1, −2.3) mm); the same sphere black
+    (``kd = 0``) 4.91 → 1.08; a black Torrance–Sparrow board 3.91 → 2.52
+    (high noise) and 2.65 → 2.14 (low; unweighted 2.87 and 1.97); boards
+    with diffuse and the Torrance–Sparrow sphere unchanged (no pixel is
+    dark there) or within 0.02.
+
+    Parameters
+    ----------
+    capture : Capture
+        Its analyzer stack; a capture without one (a given specular image)
+        has no readings to judge: nothing is left out.
+    noise : CameraNoise
+    surface : ndarray of bool, shape (H, W)
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+        True on the surface pixels to leave out.
+    """
+    if capture.stack is None or capture.specular is not None or not noise.read_var > 0:
+        return np.zeros(surface.shape, bool)
+    mean = np.where(surface[..., None], np.nan_to_num(np.mean(np.asarray(capture.stack, dtype=float), axis=0)), 0.0)
+    sigma = (CENSOR_SMOOTH_PX, CENSOR_SMOOTH_PX, 0)
+    weight = ndimage.gaussian_filter(surface.astype(float), CENSOR_SMOOTH_PX)[..., None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        smooth = ndimage.gaussian_filter(mean, sigma) / weight
+    return surface & np.any(~(smooth >= CENSOR_SIGMAS * np.sqrt(noise.read_var)), axis=-1)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nearlight.estimator import estimate
-from nearlight.estimator.noise import camera_noise, specular_variance
+from nearlight.estimator.noise import CENSOR_SIGMAS, CameraNoise, camera_noise, censored_pixels, specular_variance
 from nearlight.estimator.separation import separate_capture
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.noise import add_camera_noise
@@ -41,6 +41,36 @@ def test_camera_noise_is_measured_from_the_stack_residuals():
     assert model.source == "stack residuals"
     assert model.gain == pytest.approx(gain, rel=0.10)
 
+
+
+def test_censored_pixels_are_those_whose_mean_reading_is_within_three_read_deviations_of_zero():
+    # a limit case with a known answer: a flat stack (every angle, every channel the same value) over a
+    # surface with a step in brightness; the smoothing averages across the step only near it, so far
+    # from it a pixel is left out exactly when its value is below 3 read deviations (σ = 1 here)
+    clean = analytic_capture(width=40, height=30)
+    values = np.where(np.arange(40) < 20, 2.9, 3.1)[None, :].repeat(30, axis=0)  # (H, W)
+    stack = np.broadcast_to(values[None, ..., None], clean.stack.shape).astype(np.float32)
+    cap = clean.replace(stack=stack)
+    surface = np.ones((30, 40), bool)
+    out = censored_pixels(cap, CameraNoise(gain=0.0, read_var=1.0, source="sensor"), surface)
+    assert CENSOR_SIGMAS == 3.0
+    assert out[:, :15].all() and not out[:, 25:].any()  # 5 pixels (2.5 smoothing σ) from the step
+    # no read noise, or no readings (a given specular image): nothing to judge, nothing left out
+    assert not censored_pixels(cap, CameraNoise(0.0, 0.0, "sensor"), surface).any()
+    given = clean.replace(specular=clean.extra["truth_specular"], diffuse=clean.extra["truth_diffuse"], stack=None)
+    assert not censored_pixels(given, CameraNoise(0.0, 1.0, "sensor"), surface).any()
+
+
+def test_a_black_sphere_loses_its_dark_rim_not_its_highlight():
+    # kd = 0: outside the lobe every reading is dark (left out); the highlight's readings are far above
+    # the read noise (kept), though its crossed-angle reading is dark too (why the mean, not the minimum)
+    clean, cap = _noisy(shape="sphere", kd=(0.0, 0.0, 0.0), lamp_position=(0.1, 0.1, 0.6))
+    out = censored_pixels(cap, camera_noise(cap), cap.surface_mask)
+    spec = clean.extra["truth_specular"].mean(axis=-1)
+    peak = np.unravel_index(np.argmax(spec), spec.shape)
+    # (all but the few dark pixels within ~2 smoothing widths of the lobe's flank, whose neighbours are bright)
+    assert not out[peak] and out[cap.surface_mask & (spec < 1e-6 * spec.max())].mean() > 0.95
+    assert 0.3 < out[cap.surface_mask].mean() < 0.99
 
 def test_specular_variance_predicts_the_separated_noise():
     # over 40 seeds, the empirical variance of the separated ("fit", on the pixel's own
