@@ -65,17 +65,21 @@ LOBE_COLUMN = "est_lobe"
 LAMP_COUNT_COLUMNS = ("n_lamps_true", "n_lamps_found", "lamps_missed", "lamps_extra")
 #: Separate highlights in a several-lamp capture's noise-free specular image (its rows only).
 HIGHLIGHTS_COLUMN = "highlights_true"
+#: 1 when the method chose the number of lamps itself (``full``'s ``lamps=auto``), else 0: the report's
+#: "Lamps found" section then shows how often it counted right even where every capture has one lamp.
+COUNTED_COLUMN = "lamps_counted"
 #: Other numeric columns of a row (not compared as regressions).
 INFO_COLUMNS = ("distance_signed_m", "lamp_distance_true_m", "sigma_truth", "crlb_lamp_m", "crlb_sigma_rel",
-                *ESTIMATE_COLUMNS, *LAMP_COUNT_COLUMNS, HIGHLIGHTS_COLUMN)
+                *ESTIMATE_COLUMNS, *LAMP_COUNT_COLUMNS, HIGHLIGHTS_COLUMN, COUNTED_COLUMN)
 
 
 def estimate_columns(estimate: Any) -> dict[str, Any]:
-    """A result row's record of ``estimate``: :data:`ESTIMATE_COLUMNS` (floats) and :data:`LOBE_COLUMN`."""
+    """A result row's record of ``estimate``: :data:`ESTIMATE_COLUMNS` (floats), :data:`LOBE_COLUMN` and :data:`COUNTED_COLUMN`."""
     values = [*np.ravel(estimate.lamp_position), estimate.sigma, *np.broadcast_to(estimate.ks, (3,))]
     stage = (getattr(estimate, "stages", None) or {}).get("full")
-    lobe = stage.get("lobe") if hasattr(stage, "get") else None
-    return {**dict(zip(ESTIMATE_COLUMNS, map(float, values))), LOBE_COLUMN: str(lobe or "torrance_sparrow")}
+    stage = stage if hasattr(stage, "get") else {}
+    return {**dict(zip(ESTIMATE_COLUMNS, map(float, values))), LOBE_COLUMN: str(stage.get("lobe") or "torrance_sparrow"),
+            COUNTED_COLUMN: float(stage.get("lamps_option") == "auto")}
 
 
 def _vec(x: Any) -> np.ndarray:

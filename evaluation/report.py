@@ -33,7 +33,7 @@ import pandas as pd
 from ..errors import UserError
 from .environment import code_version
 from .matching import GATE_FRACTION
-from .metrics import LAMP_COUNT_COLUMNS, METRICS, PER_LAMP_COLUMN
+from .metrics import COUNTED_COLUMN, LAMP_COUNT_COLUMNS, METRICS, PER_LAMP_COLUMN
 from .one_at_a_time import LABEL_AXES, SPLIT, label_table, markdown_tables, plot_heatmap
 from .report_luck import LUCK_PNG, luck_table, plot_luck
 from .provenance import record
@@ -140,7 +140,8 @@ def plot_axis(df: pd.DataFrame, axis: str, path: Path) -> None:
 
 def lamp_table(df: pd.DataFrame) -> pd.DataFrame:
     """Lamps found, matched, missed and extra per method (an empty frame when every row has one true lamp and
-    one estimated lamp, as every sweep before several lamps: then nothing is written).
+    one estimated lamp from a method that did not count them, as every sweep before several lamps: then
+    nothing is written; a method that counts, ``lamps=auto``, shows its count even on one-lamp captures).
 
     Columns: ``method``, ``tasks`` (successful), ``lamps_true``, ``lamps_found``, ``matched``,
     ``missed``, ``extra`` (sums over the tasks), ``all_found`` (tasks with nothing missed and nothing
@@ -150,7 +151,8 @@ def lamp_table(df: pd.DataFrame) -> pd.DataFrame:
     if not all(c in df for c in LAMP_COUNT_COLUMNS):
         return pd.DataFrame()
     ok = df[df["status"] == "ok"]
-    if not ((ok["n_lamps_true"] > 1) | (ok["n_lamps_found"] > 1)).any():
+    counted = ok[COUNTED_COLUMN] == 1 if COUNTED_COLUMN in ok else False
+    if not ((ok["n_lamps_true"] > 1) | (ok["n_lamps_found"] > 1) | counted).any():
         return pd.DataFrame()
     per_lamp = [c for c in ok.columns if PER_LAMP_COLUMN.match(c) and c.endswith("_pct")]
     g = ok.assign(matched=ok["n_lamps_true"] - ok["lamps_missed"],

@@ -314,6 +314,9 @@ def test_lamp_table_and_compare_axes(two_lamps):
     one_lamp = pd.DataFrame([{"status": "ok", "method": "m", **score(analytic_capture(width=80, height=60),
                                                                        truth_estimate(analytic_capture(width=80, height=60)))}])
     assert lamp_table(one_lamp).empty  # one-lamp sweeps: no lamps section, the report is as before
+    # ... unless a method counted the lamps itself (lamps=auto): then how often it found one and nothing extra
+    counted = lamp_table(one_lamp.assign(lamps_counted=1.0)).set_index("method")
+    assert counted.loc["m", ["tasks", "lamps_true", "lamps_found", "extra", "all_found"]].tolist() == [1, 1, 1, 0, 1]
 
 
 
@@ -355,3 +358,14 @@ def test_report_shows_the_lamps_section_only_for_several_lamps(two_lamps, tmp_pa
     assert lamps.loc["one", ["lamps_true", "matched", "missed", "extra"]].tolist() == [3, 2, 1, 0]
     assert not (single / "report" / "lamps.csv").exists()
     assert "Lamps found" not in (single / "report" / "summary.md").read_text()
+
+
+def test_a_row_records_whether_the_method_counted_the_lamps():
+    from nearlight.evaluation.metrics import estimate_columns
+
+    auto = Estimate(method="full", lamp_position=[0, 0, 1], ks=[1, 1, 1], sigma=0.1,
+                    stages={"full": {"lobe": "ward", "lamps_option": "auto"}})
+    assert estimate_columns(auto)["lamps_counted"] == 1.0 and estimate_columns(auto)["est_lobe"] == "ward"
+    for stages in ({}, {"full": {"lobe": "ggx"}}, {"full": {"lamps_option": 2}}):  # one lamp, or a number given
+        est = Estimate(method="x", lamp_position=[0, 0, 1], ks=[1, 1, 1], sigma=0.1, stages=stages)
+        assert estimate_columns(est)["lamps_counted"] == 0.0
