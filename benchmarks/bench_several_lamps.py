@@ -23,8 +23,15 @@ Measured (5 seeds, 2 shared cores, 391 s): right count 100 % in every row;
 At 20 seeds (``--seeds 20 --noise low high``, two processes on 2 cores, 360 s
 and 292 s): right count on 80 of 80 two-lamp captures and 120 of 120 one-lamp
 ones; ``two`` median/worst 0.067/0.241 % low, 0.234/2.801 % high; ``two-dim``
-0.089/0.279 %, 0.240/0.964 %. (On Mitsuba renders of lamps 16° and 25° apart
-the count is not yet this reliable: ``sweeps/two_lamps.yaml``.)
+0.089/0.279 %, 0.240/0.964 %.
+
+With the ray and split starts for K ≥ 2 (estimator/several.py; ``--seeds 5
+--noise none low high``, 161 s; before, 224 s for low and high and 18 s
+noise-free): right count 100 % in every row and every error as before;
+s/fit two 3.2/2.7/2.9 (none/low/high; before 6.0/5.3/5.3), two-dim
+3.2/4.0/4.3 (3.5/4.3/6.1), board 3.5/1.9/2.2 (4.2/3.3/6.8), board-near
+5.7/0.9/1.2 (1.6/1.0/1.4), sphere 4.4/4.2/3.6 (2.7/6.4/4.5); the "before"
+noisy rows ran beside other work of this session, so they are upper bounds.
 
 Usage::
 

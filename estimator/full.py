@@ -38,7 +38,7 @@ from .observation import THRESHOLD, Observation, observe
 from .options import Choice, Count, CountOrZero, Positive, forwards
 from .paper import RaySearch, ray_stage, stage_one
 from .separation import SEPARATION_METHODS
-from .several import MAX_LAMPS, several_estimate, several_highlights_warning
+from .several import MAX_LAMPS, lamp_bounds, several_estimate, several_highlights_warning, short_fit, typical_scale
 from .pixels import fit_pixels
 from .result import Estimate
 from ..physics.reflectance import LOBES, normalize, peak_shape, roughness_for_ts_sigma, shading_geometry, ts_sigma
@@ -374,6 +374,22 @@ def full_estimate(
         return several_estimate(capture, lamps=lamps, lobe=lobe, noise=noise, loss=loss, f_scale=f_scale,
                                 max_pixels=max_pixels, saturation=saturation, n_starts=n_starts,
                                 separation=separation, **init_options)
+    return one_lamp_fit(capture, lobe=lobe, noise=noise, loss=loss, f_scale=f_scale, max_pixels=max_pixels,
+                        saturation=saturation, n_starts=n_starts, separation=separation, **init_options)[0]
+
+
+def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale: float | None, max_pixels: int,
+                 saturation: float | None, n_starts: int, separation: str,
+                 **init_options) -> tuple[Estimate, Observation]:
+    """:func:`full_estimate` with one lamp, and the observation it fitted (options as its, checked there).
+
+    Returns
+    -------
+    Estimate
+        ``full_estimate(capture, lamps=1, ...)``.
+    Observation
+        The capture's observation (:func:`~nearlight.estimator.observation.observe`), whole mask.
+    """
     clock = time.perf_counter()
     obs = observe(capture, separation=separation, threshold=init_options.pop("threshold", THRESHOLD))
     seconds = time.perf_counter() - clock
@@ -385,20 +401,10 @@ def full_estimate(
     camera = camera_noise(capture, surface=obs.surface) if noise == "auto" else None
     std = None if camera is None else np.sqrt(specular_variance(capture, obs.specular, camera, pixels=use))
     model = PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use], std=std)
-    lower = np.concatenate([np.full(3, -np.inf), np.zeros(3), [1e-4]])
-    upper = np.concatenate([np.full(3, np.inf), np.full(3, np.inf), [np.pi / 2]])
-
-    def typical(x: np.ndarray) -> np.ndarray:
-        return np.concatenate([np.full(3, obs.scale), np.abs(x[3:6]) + 1e-12, [x[6]]])
-
+    lower, upper = lamp_bounds(7)
     coarse = model.subset(slice(None, None, max(1, len(model.P) // 2000)))
-
-    def short_fit(m: PointLampModel, x0: np.ndarray) -> dict:
-        return robust_fit(m.residuals, np.clip(x0, lower, upper), typical=typical(x0), lower=lower,
-                          upper=upper, loss="linear", f_scale=1.0, jac=m.jacobian, max_nfev=30)
-
     trial = model.subset(slice(None, None, max(1, len(model.P) // TRIAL_PIXELS)))
-    trials = [short_fit(trial, x0) for x0 in _starts(init, start, n_starts=int(n_starts))]
+    trials = [short_fit(trial, x0, obs.scale) for x0 in _starts(init, start, n_starts=int(n_starts))]
     best = min(trials, key=lambda r: r["cost"])["x"]
     # the loss stays quadratic within a noise-free capture's float rounding: 1e-4 of the peak
     # unweighted, one standard deviation weighted (whose floor is that same 1e-4 of the peak)
@@ -410,7 +416,7 @@ def full_estimate(
         x0[6] = roughness_for_ts_sigma(family, best[6])
         c = coarse.with_lobe(family)
         x0[3:6] = c.linear_ks(x0)
-        x0 = short_fit(c, x0)["x"]
+        x0 = short_fit(c, x0, obs.scale)["x"]
         shorts[family] = (x0, _chi2(c, x0))
     first = min(shorts, key=lambda k: shorts[k][1])
     s2 = shorts[first][1] / max(3 * len(coarse.P) - 7, 1)
@@ -419,7 +425,7 @@ def full_estimate(
     for family in (k for k, v in evidence.items() if v < REFIT_EVIDENCE):
         m = model.with_lobe(family)
         x0 = shorts[family][0]
-        fits[family] = robust_fit(m.residuals, x0, typical=typical(x0), lower=lower, upper=upper, loss=loss,
+        fits[family] = robust_fit(m.residuals, x0, typical=typical_scale(x0, obs.scale), lower=lower, upper=upper, loss=loss,
                                   f_scale=f_scale, jac=m.jacobian, f_floor=floor)
         fits[family]["chi2"] = _chi2(m, fits[family]["x"])
     chosen = min(fits, key=lambda k: fits[k]["chi2"])
@@ -452,4 +458,4 @@ def full_estimate(
         diagnostics=_with_warning({**init.diagnostics, "n_specular_pixels": int(obs.mask.sum()),
                                    "n_start_pixels": int(start.mask.sum())}, several_highlights_warning(obs)),
         timings=timings,
-    )
+    ), obs

@@ -16,6 +16,15 @@ highlight's pixels, then ``full``'s multi-start along it). ``lamps="auto"``
 fits K = 1 … min(highlights + 1, :data:`MAX_LAMPS`) and keeps the K of the
 smallest Bayesian information criterion (:func:`lamp_count_evidence`).
 
+Starts that do not need the K − 1 fit to be right: where two lamps' lobes
+overlap, the count's segmentation sees one highlight and the one-lamp fit
+lands between the lamps; a start carried from it, or fitted on a
+half-lobe region, fails. So every K ≥ 2 also starts from lamps on the mirror
+rays of the smoothed image's peaks under a far smaller dip
+(:func:`ray_starts`) and from the K − 1 fit's brightest lamp split in two
+(:func:`split_starts`); all starts are screened on ~:data:`SCREEN_PIXELS`
+pixels (:func:`screened_starts`) and the best go on to every family.
+
 The sum assumes the separated specular of several lamps is the sum of theirs:
 true where their highlights do not overlap or their light is polarized alike
 (docs/capture-format.md, "Several lamps": Stokes vectors add, so where
@@ -27,7 +36,20 @@ lamps 30° apart (and a second lamp at a quarter of the intensity) and one
 lamp on a board, a near board and a sphere, noise-free, low and high noise;
 two-lamp errors (% of each lamp's distance from its highlight point) median
 0.12 % / worst 0.15 % at low noise, 0.26 % / 0.50 % at high, 1e-6 % noise-free;
-the Mitsuba render of scenes/two_lamps.yaml, 0.19 % each.
+the Mitsuba render of scenes/two_lamps.yaml, 0.19 % each. The ray and split
+starts left every one of those numbers as it was and found both lamps where
+the highlights merge: analytic, two equal lamps 25° and 16° apart noise-free
+(one lamp before; tests/test_estimator_several_lamps.py), and the cached
+Mitsuba renders of ``sweeps/two_lamps.yaml``'s equal lamps at 16° and 25°
+(noise-free, low and high noise, 2 seeds), 10 of 10 (4 of 10 before), errors
+0.11–0.25 % at 16°, 0.77–1.12 % at 25° (the one run found before: 1.04–1.12 %);
+over all 8 separations of equal lamps, 39 of 40 (33 before; the miss, 4° at
+high noise seed 0, as before: its residual shows no lobe, so K stops at 1),
+and 12° noise-free 0.26 % against 2.11 % before.
+Run time: the bench's 75 fits 161 s against 242 s before (the first stage
+no longer runs twice, and only the two best screened starts go on to the four
+families); one row slower, the noise-free near board (5.7 against 1.6 s: its
+two-lamp fit of two coincident lamps, refused by :data:`LAMP_SEPARATION`).
 """
 
 from __future__ import annotations
@@ -47,7 +69,7 @@ from .fitting import log_regression, robust_fit
 from .lobes import FAMILIES
 from .noise import camera_noise, specular_variance
 from .observation import Observation
-from .paper import RaySearch, fast_search, stage_one, t_search_defaults
+from .paper import RaySearch, fast_search, t_search_defaults
 from .pixels import fit_pixels
 from .result import Estimate
 
@@ -70,6 +92,27 @@ HIGHLIGHT_DIP_ABS = 0.05
 LEVEL_STEP = 0.005
 #: Faintest highlight, fraction of the brightest (the observation's specular mask threshold).
 HIGHLIGHT_FLOOR = 0.05
+#: Closest two lamps of one fit, fraction of their mean distance from the observation's peak point:
+#: nearer, they are one lamp (the issue's accuracy, 1 % of the distance, cannot tell them apart). On
+#: noise-free one-lamp captures, a split start made two lamps 2e-5 of the distance apart whose χ² of
+#: float32 rounding was 0.2–1 % below one lamp's, enough for BIC.
+LAMP_SEPARATION = 0.01
+#: Dips that separate the peaks of the K-lamp starts (:func:`ray_starts`): far smaller than the
+#: count's, since a spurious peak only costs a start. Two equal lamps 25° apart over the board of
+#: scenes/two_lamps.yaml dip by 22 % raw, under HIGHLIGHT_DIP smoothed; the absolute part, 2 % of
+#: the brightest, is still ~3 standard deviations of the smoothed high-noise specular (see above).
+START_DIP = 0.03
+START_DIP_ABS = 0.02
+#: Distances along each peak's mirror ray of the ray starts, × the camera–highlight distance.
+START_DISTANCES = (0.3, 0.55, 1.0, 2.0)
+#: Torrance–Sparrow σ of the ray starts (rad): narrow to broad lobes.
+START_SIGMAS = (0.05, 0.1, 0.2)
+#: Split starts: the brightest lamp of the K − 1 fit moved this fraction of its distance from the
+#: peak's surface point either way, across that line (two directions), its σ × 1 and × 1/2.
+SPLIT_OFFSETS = (0.1, 0.25)
+#: Pixels (about) of the starts' screening fits, and how many screened starts join the others.
+SCREEN_PIXELS = 500
+SCREENED = 2
 
 
 class Highlights(NamedTuple):
@@ -237,7 +280,8 @@ class SeveralLampModel:
         return float(np.sum(np.square(self.residuals(x))))
 
 
-def lamp_count_evidence(chi2: dict[int, float], faintest: dict[int, float], n_values: int) -> dict[int, dict]:
+def lamp_count_evidence(chi2: dict[int, float], faintest: dict[int, float], closest: dict[int, float],
+                        n_values: int) -> dict[int, dict]:
     """Bayesian information criterion of each lamp count, from its weighted χ².
 
     ``BIC_K = χ²_K / s² + p_K ln n`` with ``p_K = 6K + 1`` parameters and
@@ -257,6 +301,9 @@ def lamp_count_evidence(chi2: dict[int, float], faintest: dict[int, float], n_va
     brightest lamp's (the observation's specular threshold). On a noise-free
     one-lamp board, a second lamp of colour 3e-9 lowered the χ² of float32
     rounding by enough to pass BIC; no noise level is that small otherwise.
+    And its lamps must be apart: no two closer than :data:`LAMP_SEPARATION`
+    of their distance (two coincident lamps are one lamp with more freedom
+    to fit float32 rounding).
 
     Parameters
     ----------
@@ -264,6 +311,8 @@ def lamp_count_evidence(chi2: dict[int, float], faintest: dict[int, float], n_va
         Weighted χ² of the best fit with K lamps.
     faintest : dict of int to float
         Per K, the faintest lamp's peak radiance over the brightest's.
+    closest : dict of int to float
+        Per K, the closest two lamps' separation over their distance (inf for one lamp).
     n_values : int
         Number of fitted values (pixels × 3 channels).
 
@@ -271,16 +320,36 @@ def lamp_count_evidence(chi2: dict[int, float], faintest: dict[int, float], n_va
     -------
     dict of int to dict
         Per K: ``chi2``, ``n_params``, ``bic``, ``delta_bic`` (to the smallest
-        admissible), ``faintest`` and ``admissible``.
+        admissible), ``faintest``, ``closest`` and ``admissible``.
     """
     kmax = max(chi2)
     s2 = chi2[kmax] / max(n_values - (6 * kmax + 1), 1)
     s2 = s2 if s2 > 0 else 1.0
     bic = {k: c / s2 + (6 * k + 1) * np.log(n_values) for k, c in chi2.items()}
-    admissible = {k: bool(faintest[k] >= HIGHLIGHT_FLOOR) for k in chi2}
+    admissible = {k: bool(faintest[k] >= HIGHLIGHT_FLOOR and closest[k] >= LAMP_SEPARATION) for k in chi2}
     best = min(b for k, b in bic.items() if admissible[k])
     return {k: {"chi2": chi2[k], "n_params": 6 * k + 1, "bic": float(bic[k]), "delta_bic": float(bic[k] - best),
-                "faintest": float(faintest[k]), "admissible": admissible[k]} for k in sorted(chi2)}
+                "faintest": float(faintest[k]), "closest": float(closest[k]), "admissible": admissible[k]}
+            for k in sorted(chi2)}
+
+
+def closest_pair(x: np.ndarray, point: np.ndarray) -> float:
+    """The closest two lamps of ``x`` (K lamps): their separation over their mean distance from ``point``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (6K + 1,)
+    point : ndarray, shape (3,)
+        A surface point (m), e.g. the observation's peak pixel's.
+
+    Returns
+    -------
+    float
+        inf for one lamp.
+    """
+    lamps = [x[6 * i : 6 * i + 3] for i in range((len(x) - 1) // 6)]
+    return min((float(np.linalg.norm(a - b) / np.mean([np.linalg.norm(a - point), np.linalg.norm(b - point)]))
+                for i, a in enumerate(lamps) for b in lamps[i + 1 :]), default=np.inf)
 
 
 def chosen_count(evidence: dict[int, dict]) -> int:
@@ -333,34 +402,163 @@ def _region_start(obs: Observation, region: np.ndarray, std: np.ndarray | None, 
     rows = np.flatnonzero(mask.ravel())[:: max(1, int(mask.sum()) // 2000)]
     model = PointLampModel(obs.P.reshape(-1, 3)[rows], obs.N.reshape(-1, 3)[rows], obs.camera_position,
                            obs.specular.reshape(-1, 3)[rows], std=None if std is None else std.reshape(-1, 3)[rows])
-    trials = [_short_fit(model, x0, obs.scale) for x0 in starts(init, sub, n_starts=n_starts)]
+    trials = [short_fit(model, x0, obs.scale) for x0 in starts(init, sub, n_starts=n_starts)]
     return min(trials, key=lambda r: r["cost"])["x"]
 
 
-def _bounds(n_params: int) -> tuple[np.ndarray, np.ndarray]:
+def lamp_bounds(n_params: int) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of the parameters ``(l₁, c₁, …, l_K, c_K, a)`` of K lamps.
+
+    Parameters
+    ----------
+    n_params : int
+        ``6K + 1``.
+
+    Returns
+    -------
+    lower, upper : ndarray, shape (n_params,)
+        Positions free (m), colours ≥ 0, roughness in [1e-4, π/2].
+    """
     k = (n_params - 1) // 6
     lower = np.concatenate([np.tile(np.r_[np.full(3, -np.inf), np.zeros(3)], k), [1e-4]])
     upper = np.concatenate([np.full(6 * k, np.inf), [np.pi / 2]])
     return lower, upper
 
 
-def _typical(x: np.ndarray, scale: float) -> np.ndarray:
+def typical_scale(x: np.ndarray, scale: float) -> np.ndarray:
+    """Typical size of each parameter of ``x`` (the fit's variable scaling).
+
+    Parameters
+    ----------
+    x : ndarray, shape (6K + 1,)
+        ``(l₁, c₁, …, l_K, c_K, a)``.
+    scale : float
+        Camera–highlight distance (m): each position coordinate's size.
+
+    Returns
+    -------
+    ndarray, shape (6K + 1,)
+        ``scale`` per coordinate, ``|colour| + 1e-12`` per channel, the roughness itself.
+    """
     k = (len(x) - 1) // 6
     blocks = [np.r_[np.full(3, scale), np.abs(x[6 * i + 3 : 6 * i + 6]) + 1e-12] for i in range(k)]
     return np.concatenate([*blocks, [x[-1]]])
 
 
-def _short_fit(model: Any, x0: np.ndarray, scale: float | None = None) -> dict:
-    """A linear-loss fit of a one- or several-lamp model: ``full``'s short fit (30 evaluations), 100 for several lamps.
+def short_fit(model: Any, x0: np.ndarray, scale: float) -> dict:
+    """A linear-loss fit of a one- or several-lamp model from ``x0`` (clipped to :func:`lamp_bounds`).
 
-    Several lamps need more: a two-lamp start from a dim lamp's residual was still 10⁹ times the
-    optimum's χ² after 30 evaluations (and another family's, stuck nearer, won the choice).
+    ``full``'s short fit: 30 evaluations for one lamp, 100 for several (a
+    two-lamp start from a dim lamp's residual was still 10⁹ times the
+    optimum's χ² after 30, and another family's, stuck nearer, won the choice).
+
+    Parameters
+    ----------
+    model : PointLampModel or SeveralLampModel
+    x0 : ndarray, shape (6K + 1,)
+        Start.
+    scale : float
+        Camera–highlight distance (m), see :func:`typical_scale` (of the unclipped ``x0``).
+
+    Returns
+    -------
+    dict
+        :func:`~nearlight.estimator.fitting.robust_fit`'s result.
     """
-    lower, upper = _bounds(len(x0))
-    x0 = np.clip(x0, lower, upper)
-    scale = float(np.linalg.norm(x0[:3])) if scale is None else scale
-    return robust_fit(model.residuals, x0, typical=_typical(x0, scale), lower=lower, upper=upper, loss="linear",
-                      f_scale=1.0, jac=model.jacobian, max_nfev=100 if len(x0) > 7 else 30)
+    lower, upper = lamp_bounds(len(x0))
+    return robust_fit(model.residuals, np.clip(x0, lower, upper), typical=typical_scale(x0, scale), lower=lower,
+                      upper=upper, loss="linear", f_scale=1.0, jac=model.jacobian,
+                      max_nfev=100 if len(x0) > 7 else 30)
+
+
+def _perpendiculars(d: np.ndarray) -> np.ndarray:
+    """Two unit vectors perpendicular to ``d`` and to each other, shape (2, 3)."""
+    d = d / np.linalg.norm(d)
+    a = np.eye(3)[int(np.argmin(np.abs(d)))]
+    u = np.cross(d, a)
+    u /= np.linalg.norm(u)
+    return np.stack([u, np.cross(d, u)])
+
+
+def ray_starts(obs: Observation, k: int) -> list[np.ndarray]:
+    """K-lamp Torrance–Sparrow starts, lamp i on the mirror ray of start peak i (colours 1: solve them after).
+
+    The peaks are the smoothed specular's local maxima that a dip of
+    :data:`START_DIP` separates (:func:`segment_highlights`), brightest first;
+    the K brightest get a lamp each, all at one distance of
+    :data:`START_DISTANCES` and one σ of :data:`START_SIGMAS`. Unlike a fit on
+    each highlight's region, this needs no lobe's worth of pixels per
+    highlight: a peak's ray passes near its lamp however much of the lobe
+    the other lamp's overlaps.
+
+    Parameters
+    ----------
+    obs : Observation
+    k : int
+        Number of lamps.
+
+    Returns
+    -------
+    list of ndarray, shape (6k + 1,)
+        Empty when fewer than ``k`` peaks.
+    """
+    peaks = segment_highlights(obs.specular, obs.located, dip=START_DIP, dip_abs=START_DIP_ABS).peaks[:k]
+    if len(peaks) < k:
+        return []
+    rays = [RaySearch(dataclasses.replace(obs, peak=p)) for p in peaks]
+    return [np.concatenate([*(np.r_[ray.lamp(t * obs.scale), np.ones(3)] for ray in rays), [sigma]])
+            for t in START_DISTANCES for sigma in START_SIGMAS]
+
+
+def split_starts(obs: Observation, x: np.ndarray) -> list[np.ndarray]:
+    """(K + 1)-lamp starts from a K-lamp fit ``x`` (Torrance–Sparrow): its brightest lamp split in two.
+
+    Two lamps whose highlights merge are fitted by one lamp between them
+    with a broader lobe; the pair is put back either side of it (see
+    :data:`SPLIT_OFFSETS`), colours halved.
+
+    Parameters
+    ----------
+    obs : Observation
+        Its peak pixel's surface point is where the distance is measured from.
+    x : ndarray, shape (6K + 1,)
+
+    Returns
+    -------
+    list of ndarray, shape (6K + 7,)
+    """
+    k = (len(x) - 1) // 6
+    j = max(range(k), key=lambda i: float(np.mean(x[6 * i + 3 : 6 * i + 6])))
+    lamp, colour = x[6 * j : 6 * j + 3], x[6 * j + 3 : 6 * j + 6] / 2
+    arm = lamp - obs.P[obs.peak]
+    others = [x[6 * i : 6 * i + 6] for i in range(k) if i != j]
+    offsets = [f * np.linalg.norm(arm) * u for u in _perpendiculars(arm) for f in SPLIT_OFFSETS]
+    return [np.concatenate([*others, lamp + d, colour, lamp - d, colour, [x[-1] * r]])
+            for d in offsets for r in (1.0, 0.5)]
+
+
+def screened_starts(model: SeveralLampModel, starts: list[np.ndarray], scale: float) -> list[np.ndarray]:
+    """The :data:`SCREENED` best of ``starts`` after colours by NNLS and a short fit on ~:data:`SCREEN_PIXELS` pixels.
+
+    Parameters
+    ----------
+    model : SeveralLampModel
+        Torrance–Sparrow, K lamps, the fitted pixels.
+    starts : list of ndarray, shape (6K + 1,)
+    scale : float
+        Camera–highlight distance (m).
+
+    Returns
+    -------
+    list of ndarray, shape (6K + 1,)
+        Fitted on the subset, lowest χ² first.
+    """
+    if not starts:
+        return []
+    small = model.subset(slice(None, None, max(1, len(model.lamp.P) // SCREEN_PIXELS)))
+    solved = sorted((small.linear_colours(x) for x in starts), key=small.chi2)[: 2 * SCREENED]
+    fitted = [short_fit(small, x, scale)["x"] for x in solved]
+    return sorted(fitted, key=small.chi2)[:SCREENED]
 
 
 def _convert_roughness(x: np.ndarray, src: str, dst: str) -> np.ndarray:
@@ -378,12 +576,15 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
     K = 1 is ``full``'s one-lamp fit (``lamps=1``), bit for bit. Each further
     lamp starts at the next highlight of :func:`segment_highlights` (brightest
     first; :func:`_region_start`), or, past the last highlight, at the
-    brightest highlight of the previous fit's positive residual; the K lamps
-    are refitted jointly from the previous K − 1 and the new one (colours
-    re-solved by NNLS), in each lobe family of ``lobe`` on the short fits'
-    pixel subset, and the family of least χ² there gets the final robust fit
-    on every pixel (:func:`~nearlight.estimator.fitting.robust_fit`, ``full``'s
-    loss and weights).
+    brightest highlight of the previous fit's positive residual (no such
+    highlight: K stops there); the K lamps start from the previous K − 1 and
+    the new one, from every highlight's own start, from :func:`ray_starts`
+    and from :func:`split_starts`; the :data:`SCREENED` best of these
+    (:func:`screened_starts`) are refitted jointly (colours re-solved by
+    NNLS) in each lobe family of ``lobe`` on the short fits' pixel subset,
+    and the family of least χ² there gets the final robust fit on every
+    pixel (:func:`~nearlight.estimator.fitting.robust_fit`, ``full``'s loss
+    and weights).
 
     Parameters
     ----------
@@ -404,13 +605,11 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
         (colour: the fitted family's, as ``stages["full"]["bsdf"]``), and
         ``stages["full"]["lamps_evidence"]`` per K tried (``lamps="auto"``).
     """
-    from .full import PointLampModel, _starts, full_estimate  # full dispatches here: import at call time
+    from .full import PointLampModel, _starts, one_lamp_fit  # full dispatches here: import at call time
 
-    options = dict(lobe=lobe, noise=noise, loss=loss, f_scale=f_scale, max_pixels=max_pixels, saturation=saturation,
-                   n_starts=n_starts, separation=separation, **init_options)
-    one = full_estimate(capture, lamps=1, **options)
+    one, obs = one_lamp_fit(capture, lobe=lobe, noise=noise, loss=loss, f_scale=f_scale, max_pixels=max_pixels,
+                            saturation=saturation, n_starts=n_starts, separation=separation, **init_options)
     clock = time.perf_counter()
-    _, obs = stage_one(capture, strict_t_max=False, separation=separation, **init_options)
     found = highlights_of(obs)
     use = fit_pixels(obs, max_pixels=int(max_pixels), saturation=saturation)
     camera = camera_noise(capture, surface=obs.surface) if noise == "auto" else None
@@ -458,13 +657,19 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
         own = [highlight_start(i) for i in range(k)] if k <= len(found.peaks) else []
         if own and all(o is not None for o in own):  # every highlight's own start
             candidates.append(np.concatenate([*(o[:6] for o in own), own[0][-1:]]))
-        if not candidates:
+        if not candidates:  # no highlight nor residual lobe left for another lamp
             break
+        # and starts that need no right K − 1 fit nor a lobe per highlight: lamps on the start peaks' rays,
+        # and the K − 1 fit's brightest lamp split in two (highlights merged into one); the best few of all
+        # go on to every family
+        previous = _convert_roughness(fits[k - 1]["x"], fits[k - 1]["lobe"], "torrance_sparrow")
+        candidates = screened_starts(SeveralLampModel(base, k),
+                                     candidates + ray_starts(obs, k) + split_starts(obs, previous), obs.scale)
         shorts = {}
         for fam in families:
             m = SeveralLampModel(base.with_lobe(fam), k).subset(slice(None, None, stride))
             for x0 in candidates:
-                xf = _short_fit(m, m.linear_colours(_convert_roughness(x0, "torrance_sparrow", fam)), obs.scale)["x"]
+                xf = short_fit(m, m.linear_colours(_convert_roughness(x0, "torrance_sparrow", fam)), obs.scale)["x"]
                 c = m.chi2(xf)
                 if fam not in shorts or c < shorts[fam][1]:
                     shorts[fam] = (xf, c)
@@ -473,8 +678,8 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
         fam = min(shorts, key=lambda f: shorts[f][1])
         model = SeveralLampModel(base.with_lobe(fam), k)
         xs = shorts[fam][0]
-        lower, upper = _bounds(len(xs))
-        fit = robust_fit(model.residuals, xs, typical=_typical(xs, obs.scale), lower=lower, upper=upper, loss=loss,
+        lower, upper = lamp_bounds(len(xs))
+        fit = robust_fit(model.residuals, xs, typical=typical_scale(xs, obs.scale), lower=lower, upper=upper, loss=loss,
                          f_scale=f_scale, jac=model.jacobian, f_floor=floor)
         fits[k] = {**fit, "lobe": fam, "chi2": model.chi2(fit["x"])}
     if lamps != "auto" and int(lamps) not in fits:
@@ -485,7 +690,8 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
     for k, fit in fits.items():
         peaks_k = SeveralLampModel(peaks.lamp.with_lobe(fit["lobe"]), k).lamp_peaks(fit["x"])
         faintest[k] = float(peaks_k.min() / peaks_k.max()) if peaks_k.max() > 0 else 0.0
-    evidence = lamp_count_evidence({k: v["chi2"] for k, v in fits.items()}, faintest, 3 * int(use.sum()))
+    closest = {k: closest_pair(fit["x"], obs.P[obs.peak]) for k, fit in fits.items()}
+    evidence = lamp_count_evidence({k: v["chi2"] for k, v in fits.items()}, faintest, closest, 3 * int(use.sum()))
     k = chosen_count(evidence) if lamps == "auto" else int(lamps)
     if lamps == "auto" and k == 1:
         return _with_count(one, evidence, found)
