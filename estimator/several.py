@@ -67,10 +67,10 @@ from ..errors import UserError
 from ..physics.reflectance import LOBES, peak_shape, roughness_for_ts_sigma, ts_sigma
 from .fitting import log_regression, robust_fit
 from .lobes import FAMILIES
-from .noise import camera_noise, specular_variance
+from .noise import specular_variance
 from .observation import Observation
 from .paper import RaySearch, fast_search, t_search_defaults
-from .pixels import fit_pixels
+from .pixels import weighted_fit_pixels
 from .result import Estimate
 
 #: Most lamps ``lamps="auto"`` tries (the issue's bound: K ≤ min(highlights + 1, 4)).
@@ -611,8 +611,7 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
                             saturation=saturation, n_starts=n_starts, separation=separation, **init_options)
     clock = time.perf_counter()
     found = highlights_of(obs)
-    use = fit_pixels(obs, max_pixels=int(max_pixels), saturation=saturation)
-    camera = camera_noise(capture, surface=obs.surface) if noise == "auto" else None
+    use, camera = weighted_fit_pixels(capture, obs, noise=noise, max_pixels=int(max_pixels), saturation=saturation)
     std_img = None if camera is None else np.sqrt(specular_variance(capture, obs.specular, camera))
     std = None if std_img is None else std_img[use]
     base = PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use], std=std)
