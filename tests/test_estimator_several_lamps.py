@@ -179,3 +179,16 @@ def test_two_lamps_rendered(lamps):
     est = estimate(cap, method="full", lamps=lamps)
     assert est.stages["full"]["n_lamps"] == 2
     assert max(lamp_errors_pct(cap, est)) < 1.0
+
+
+def test_the_count_does_not_trust_the_model_below_the_fits_floor():
+    # a noise-free capture's χ² is the model's own misfit: without a floor, halving it (a faint satellite
+    # lamp absorbing lobe-shape error, as on the sensitivity study's noise-free renders) beats BIC's 66 per
+    # lamp by far; with s² at least the fit's floor (one pixel weight: 1), a drop of 0.5 is no evidence,
+    # while a true second lamp's (>= 1e4 of the floor on the noise-free two-lamp study) still is
+    from nearlight.estimator.several import chosen_count, lamp_count_evidence
+
+    faintest, closest, n = {1: 1.0, 2: 0.08}, {1: np.inf, 2: 0.03}, 30000
+    assert chosen_count(lamp_count_evidence({1: 1.0, 2: 0.5}, faintest, closest, n)) == 2
+    assert chosen_count(lamp_count_evidence({1: 1.0, 2: 0.5}, faintest, closest, n, s2_floor=1.0)) == 1
+    assert chosen_count(lamp_count_evidence({1: 1e4, 2: 0.5}, faintest, closest, n, s2_floor=1.0)) == 2
