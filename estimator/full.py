@@ -31,14 +31,15 @@ from pydantic import AfterValidator, Field
 
 from ..capture import Capture
 from ..errors import UserError
-from .fitting import log_regression, robust_fit
+from .fitting import log_regression
 from .lobes import FAMILIES, log_derivatives, radiance
 from .noise import specular_variance
 from .observation import THRESHOLD, Observation, observe
 from .options import Choice, Count, CountOrZero, Positive, forwards
 from .paper import RaySearch, ray_stage, stage_one
 from .separation import SEPARATION_METHODS
-from .several import MAX_LAMPS, lamp_bounds, several_estimate, several_highlights_warning, short_fit, typical_scale
+from .several import (MAX_LAMPS, final_fit, loss_floor, several_estimate, several_highlights_warning,
+                      short_fit)
 from .pixels import weighted_fit_pixels
 from .result import Estimate
 from ..physics.reflectance import LOBES, normalize, peak_shape, roughness_for_ts_sigma, shading_geometry, ts_sigma
@@ -404,14 +405,11 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
     use, camera = weighted_fit_pixels(capture, obs, noise=noise, max_pixels=int(max_pixels), saturation=saturation)
     std = None if camera is None else np.sqrt(specular_variance(capture, obs.specular, camera, pixels=use))
     model = PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use], std=std)
-    lower, upper = lamp_bounds(7)
     coarse = model.subset(slice(None, None, max(1, len(model.P) // 2000)))
     trial = model.subset(slice(None, None, max(1, len(model.P) // TRIAL_PIXELS)))
     trials = [short_fit(trial, x0, obs.scale) for x0 in _starts(init, start, n_starts=int(n_starts))]
     best = min(trials, key=lambda r: r["cost"])["x"]
-    # the loss stays quadratic within a noise-free capture's float rounding: 1e-4 of the peak
-    # unweighted, one standard deviation weighted (whose floor is that same 1e-4 of the peak)
-    floor = 1e-4 * float(np.max(obs.specular[use])) if std is None else 1.0
+    floor = loss_floor(obs.specular[use], std)
     families = FAMILIES if lobe == "auto" else tuple(v.strip() for v in lobe.split("+"))
     shorts = {}
     for family in families:
@@ -428,8 +426,7 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
     for family in (k for k, v in evidence.items() if v < REFIT_EVIDENCE):
         m = model.with_lobe(family)
         x0 = shorts[family][0]
-        fits[family] = robust_fit(m.residuals, x0, typical=typical_scale(x0, obs.scale), lower=lower, upper=upper, loss=loss,
-                                  f_scale=f_scale, jac=m.jacobian, f_floor=floor)
+        fits[family] = final_fit(m, x0, obs.scale, loss=loss, f_scale=f_scale, floor=floor)
         fits[family]["chi2"] = _chi2(m, fits[family]["x"])
     chosen = min(fits, key=lambda k: fits[k]["chi2"])
     fit = fits[chosen]

@@ -482,6 +482,53 @@ def short_fit(model: Any, x0: np.ndarray, scale: float) -> dict:
                       max_nfev=100 if len(x0) > 7 else 30)
 
 
+def final_fit(model: Any, x0: np.ndarray, scale: float, *, loss: str, f_scale: float | None,
+              floor: float) -> dict:
+    """The robust fit of a one- or several-lamp model on every fit pixel, from a short fit's ``x0``.
+
+    Parameters
+    ----------
+    model : PointLampModel or SeveralLampModel
+    x0 : ndarray, shape (6K + 1,)
+        Start, within :func:`lamp_bounds` (a :func:`short_fit`'s result).
+    scale : float
+        Camera–highlight distance (m), see :func:`typical_scale`.
+    loss, f_scale
+        The robust loss and its scale, as :func:`~nearlight.estimator.fitting.robust_fit`'s.
+    floor : float
+        :func:`loss_floor`, in the residuals' units.
+
+    Returns
+    -------
+    dict
+        :func:`~nearlight.estimator.fitting.robust_fit`'s result.
+    """
+    lower, upper = lamp_bounds(len(x0))
+    return robust_fit(model.residuals, x0, typical=typical_scale(x0, scale), lower=lower, upper=upper, loss=loss,
+                      f_scale=f_scale, jac=model.jacobian, f_floor=floor)
+
+
+def loss_floor(specular: np.ndarray, std: np.ndarray | None) -> float:
+    """The smallest residual scale the fit and the lamp count trust, in the residuals' units.
+
+    The loss stays quadratic within a noise-free capture's float rounding:
+    1e-4 of the peak unweighted, one standard deviation weighted (whose
+    floor is that same 1e-4 of the peak, :func:`~nearlight.estimator.noise.specular_variance`).
+
+    Parameters
+    ----------
+    specular : ndarray, shape (n, 3)
+        The fit pixels' separated specular radiance.
+    std : ndarray, shape (n, 3), or None
+        Their standard deviations (None: unweighted fit).
+
+    Returns
+    -------
+    float
+    """
+    return 1e-4 * float(np.max(specular)) if std is None else 1.0
+
+
 def _perpendiculars(d: np.ndarray) -> np.ndarray:
     """Two unit vectors perpendicular to ``d`` and to each other, shape (2, 3)."""
     d = d / np.linalg.norm(d)
@@ -629,7 +676,7 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
     k_max = min(len(found.peaks) + 1, MAX_LAMPS) if lamps == "auto" else int(lamps)
     families = FAMILIES if lobe == "auto" else tuple(v.strip() for v in lobe.split("+"))
     stride = max(1, len(base.P) // 2000)
-    floor = 1e-4 * float(np.max(obs.specular[use])) if std is None else 1.0
+    floor = loss_floor(obs.specular[use], std)
 
     s1 = one.stages["full"]
     x1 = np.concatenate([s1["lamp_position"], s1["ks"], [s1["roughness"]]])
@@ -688,9 +735,7 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
         fam = min(shorts, key=lambda f: shorts[f][1])
         model = SeveralLampModel(base.with_lobe(fam), k)
         xs = shorts[fam][0]
-        lower, upper = lamp_bounds(len(xs))
-        fit = robust_fit(model.residuals, xs, typical=typical_scale(xs, obs.scale), lower=lower, upper=upper, loss=loss,
-                         f_scale=f_scale, jac=model.jacobian, f_floor=floor)
+        fit = final_fit(model, xs, obs.scale, loss=loss, f_scale=f_scale, floor=floor)
         fits[k] = {**fit, "lobe": fam, "chi2": model.chi2(fit["x"])}
     if lamps != "auto" and int(lamps) not in fits:
         raise UserError(f"{capture.name}: option lamps={lamps}: found starts for only {max(fits)} lamps "

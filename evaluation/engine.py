@@ -117,7 +117,7 @@ def row_estimate(row: Any) -> Any:
 
     x, y, z, sigma, *ks = (float(row[c]) for c in ESTIMATE_COLUMNS)
     est = Estimate(method=str(row["method"]), lamp_position=np.array([x, y, z]), ks=np.array(ks), sigma=sigma)
-    lobe = str(row.get(LOBE_COLUMN, "") or "torrance_sparrow") if hasattr(row, "get") else "torrance_sparrow"
+    lobe = str(row.get(LOBE_COLUMN, "") or "torrance_sparrow")
     if lobe != "torrance_sparrow" and lobe in LOBES and np.isfinite(sigma) and sigma > 0:
         bsdf = convert_bsdf({"model": "torrance_sparrow", "ks": est.ks, "sigma": sigma}, lobe)
         est.stages = {"full": {"lobe": lobe, "bsdf": bsdf}}

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..physics.polarization import through_polarizer
 from ..physics.reflectance import LOBES, shading_geometry, ts_sigma
-from .resynthesis import resynthesize
+from .resynthesis import fitted_stage, resynthesize
 
 #: Metric columns (all "lower is better"), in table order, with their units.
 METRICS: dict[str, str] = {
@@ -76,8 +76,7 @@ INFO_COLUMNS = ("distance_signed_m", "lamp_distance_true_m", "sigma_truth", "crl
 def estimate_columns(estimate: Any) -> dict[str, Any]:
     """A result row's record of ``estimate``: :data:`ESTIMATE_COLUMNS` (floats), :data:`LOBE_COLUMN` and :data:`COUNTED_COLUMN`."""
     values = [*np.ravel(estimate.lamp_position), estimate.sigma, *np.broadcast_to(estimate.ks, (3,))]
-    stage = (getattr(estimate, "stages", None) or {}).get("full")
-    stage = stage if hasattr(stage, "get") else {}
+    stage = fitted_stage(estimate)
     return {**dict(zip(ESTIMATE_COLUMNS, map(float, values))), LOBE_COLUMN: str(stage.get("lobe") or "torrance_sparrow"),
             COUNTED_COLUMN: float(stage.get("lamps_option") == "auto")}
 

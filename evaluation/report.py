@@ -179,9 +179,11 @@ def lamps_by_label(df: pd.DataFrame, axis: str) -> pd.DataFrame:
         Long table in the sweep's order, one row per label and method of the
         labels with several true lamps: ``axis``, ``label``, ``method``,
         ``tasks``, ``all_found`` (successful tasks with nothing missed and
-        nothing extra; failed ones count as not found) and ``highlights``
-        (median of ``highlights_true`` over the label's rows, the separate
-        highlights of the noise-free specular image; NaN where not
+        nothing extra; failed ones count as not found), ``highlights_min``
+        and ``highlights_max`` (the range of ``highlights_true`` over the
+        label's rows, the separate highlights of the noise-free specular
+        image, which the other axes can change: at one separation equal
+        lamps may show two and a faint one a single blob; NaN where not
         measured). Empty when ``df`` has no several-lamp rows.
     """
     if "n_lamps_true" not in df:
@@ -193,18 +195,22 @@ def lamps_by_label(df: pd.DataFrame, axis: str) -> pd.DataFrame:
     clean = (several["status"] == "ok") & (several["lamps_missed"] == 0) & (several["lamps_extra"] == 0)
     rows = []
     for label, g in several.groupby(axis, sort=False):
-        seen = float(g["highlights_true"].median()) if "highlights_true" in g else np.nan
+        seen = g["highlights_true"] if "highlights_true" in g else pd.Series(dtype=float)
         for method, m in g.groupby("method", sort=False):
             rows.append({"axis": axis, "label": label, "method": method, "tasks": len(m),
-                         "all_found": int(clean[m.index].sum()), "highlights": seen})
+                         "all_found": int(clean[m.index].sum()), "highlights_min": float(seen.min()),
+                         "highlights_max": float(seen.max())})
     return pd.DataFrame(rows)
 
 
 def _lamps_by_wide(table: pd.DataFrame) -> pd.DataFrame:
-    """:func:`lamps_by_label`'s table for the summary: rows the labels, ``highlights``, a ``k/n`` column per method."""
+    """:func:`lamps_by_label`'s table for the summary: rows the labels, ``highlights`` (``1`` or a range ``1–2``),
+    a ``k/n`` column per method."""
     wide = table.assign(cell=table["all_found"].astype(str) + "/" + table["tasks"].astype(str)).pivot_table(
         index="label", columns="method", values="cell", aggfunc="first", sort=False)
-    seen = table.groupby("label", sort=False)["highlights"].first()
+    first = table.groupby("label", sort=False)[["highlights_min", "highlights_max"]].first()
+    seen = pd.Series([f"{lo:g}" if lo == hi else f"{lo:g}–{hi:g}" for lo, hi in first.itertuples(index=False)],
+                     index=first.index, name="highlights")
     axis = table["axis"].iloc[0]
     return pd.concat([seen, wide], axis=1).rename_axis(index=axis, columns=None).reset_index()
 
@@ -337,7 +343,7 @@ def write_report(
             md += [f"### Every lamp found, by {a}", "",
                    "`highlights`: separate highlights in the noise-free specular image (the estimators' "
                    "segmentation, `nearlight.estimator.several.segment_highlights`; 1 where the lamps' highlights "
-                   "have merged into one blob); per method, the tasks that found every lamp and nothing extra, "
+                   "have merged into one blob), a range where the other axes change it; per method, the tasks that found every lamp and nothing extra, "
                    "of its tasks (failed ones count as not found).", "", _md(_lamps_by_wide(by)), ""]
     tables = [label_table(df, a) for a in labelled]
     if tables:

@@ -353,14 +353,23 @@ def specular_distant(N: np.ndarray, light_direction: Any, view_direction: Any, b
     return _normalised_lobe_radiance(model, N, light, view, colour, a)
 
 
+def fitted_stage(estimate: Any) -> dict[str, Any]:
+    """``full``'s stage of ``estimate`` (``estimate.stages["full"]``), or ``{}`` when it has none.
+
+    The one reader of what ``full`` fitted (``lobe``, ``bsdf``, ``lamps_option``)
+    for grading and for result rows (:func:`~nearlight.evaluation.metrics.estimate_columns`).
+    """
+    stage = (getattr(estimate, "stages", None) or {}).get("full")
+    return stage if isinstance(stage, dict) else {}
+
+
 def fitted_bsdf(estimate: Any) -> Any:
     """The BSDF dict of the lobe family ``full`` fitted (``estimate.stages["full"]["bsdf"]``), or None.
 
     Any other estimate (every other method) has none and is rendered from
     its Torrance–Sparrow ``ks`` and ``sigma``.
     """
-    stage = (getattr(estimate, "stages", None) or {}).get("full")
-    return stage.get("bsdf") if hasattr(stage, "get") else None
+    return fitted_stage(estimate).get("bsdf")
 
 
 def resynthesize(capture: Any, estimate: Any) -> np.ndarray:

@@ -330,10 +330,25 @@ def test_lamps_by_label_counts_every_lamp_found_per_label_and_method(two_lamps):
             {"set": "far", "method": "auto", "status": "error"},  # a failed task: no counts, not found
             {"set": "far", "method": "one", "status": "ok", **one}]
     t = lamps_by_label(pd.DataFrame(rows).assign(task_index=range(4)), "set").set_index("method")
-    assert t.loc["auto", ["label", "tasks", "all_found", "highlights"]].tolist() == ["far", 2, 1, 2.0]
+    assert t.loc["auto", ["label", "tasks", "all_found", "highlights_min", "highlights_max"]].tolist() == [
+        "far", 2, 1, 2.0, 2.0]
     assert t.loc["one", ["tasks", "all_found"]].tolist() == [2, 0]
     single = pd.DataFrame([{"set": "x", "method": "m", "status": "ok", "task_index": 0, "n_lamps_true": 1.0}])
     assert lamps_by_label(single, "set").empty
+
+
+def test_the_summary_shows_the_highlights_range_where_other_axes_change_it():
+    import pandas as pd
+
+    from nearlight.evaluation.report import _lamps_by_wide, lamps_by_label
+
+    # one label, equal lamps (two highlights) and a faint second lamp (one blob): 1–2, not a median of 1.5
+    rows = [{"set": "30deg", "method": "auto", "status": "ok", "n_lamps_true": 2.0, "lamps_missed": 0.0,
+             "lamps_extra": 0.0, "highlights_true": h} for h in (2.0, 1.0)]
+    rows += [{"set": "40deg", "method": "auto", "status": "ok", "n_lamps_true": 2.0, "lamps_missed": 1.0,
+              "lamps_extra": 0.0, "highlights_true": 2.0}]
+    wide = _lamps_by_wide(lamps_by_label(pd.DataFrame(rows).assign(task_index=range(3)), "set"))
+    assert wide[["set", "highlights", "auto"]].values.tolist() == [["30deg", "1–2", "2/2"], ["40deg", "2", "0/1"]]
 
 def test_report_shows_the_lamps_section_only_for_several_lamps(two_lamps, tmp_path):
     import pandas as pd
