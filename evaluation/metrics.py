@@ -568,7 +568,10 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
         - a true lamp at the highlight point: percentage and direction
           errors NaN; no highlight at all (no surface point sees both lamp
           and camera): every metric measured from it NaN;
-        - a true σ ≤ 0: σ error NaN; no Ks in the truth BSDF: Ks error NaN.
+        - a true σ ≤ 0: σ error NaN; no Ks in the truth BSDF: Ks error NaN;
+        - no ``truth_specular`` in the capture (a ``material.model: mitsuba``
+          render, whose BSDF the generator cannot split into specular and
+          diffuse parts): both specular RMSEs NaN.
 
         The specular RMSEs compare the estimate's re-synthesis (its
         ``lamp_position`` with its ``ks`` and ``sigma``) with the observed
@@ -579,9 +582,11 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
     lamps = lamp_scores(capture, estimate)
     sigma_true = truth_sigma(bsdf)
     ks_true = truth_ks(bsdf)
-    observed = capture.extra["truth_specular"]
+    observed = capture.extra.get("truth_specular")
     mask = capture.surface_mask
     rendered = resynthesize(capture, estimate)
+    rmse = (math.nan, math.nan) if observed is None else (specular_rmse(rendered, observed, mask),
+                                                         specular_rmse_relative(rendered, observed, mask))
     out = {
         "lamp_position_error_m": lamps.pop("lamp_position_error_m"),
         "lamp_position_error_pct": lamps.pop("lamp_position_error_pct"),
@@ -590,8 +595,8 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
         "sigma_rel_error": math.nan if "sigma" in estimate.diagnostics.get("undetermined", ())
         else sigma_relative_error(estimate.sigma, sigma_true),
         "ks_rel_error": math.nan if ks_true is None else ks_relative_error(estimate.ks, ks_true),
-        "specular_rmse": specular_rmse(rendered, observed, mask),
-        "specular_rmse_rel": specular_rmse_relative(rendered, observed, mask),
+        "specular_rmse": rmse[0],
+        "specular_rmse_rel": rmse[1],
         "distance_signed_m": lamps.pop("distance_signed_m"),
         "lamp_distance_true_m": lamps.pop("lamp_distance_true_m"),
         "sigma_truth": sigma_true,

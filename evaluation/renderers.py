@@ -105,8 +105,10 @@ class Renderer:
                 set_dotted(scene, self.object_key, value, where=where)
         elif name == "bsdf":
             material = dict(get_dotted(scene, self.material_key) or {})
-            if isinstance(value, dict):
-                keep = {k: v for k, v in material.items() if k in ("kd", "polarization", "eta")}
+            if isinstance(value, dict):  # the base's diffuse and polarization stay with a lobe family of ours;
+                # a Mitsuba BSDF (``model: mitsuba``) is the whole material and has none of those keys
+                ours = value.get("model", "torrance_sparrow") in LOBES
+                keep = {k: v for k, v in material.items() if ours and k in ("kd", "polarization", "eta")}
                 material = {**keep, **value}
             else:
                 try:

@@ -332,7 +332,7 @@ def _check_axis_value(path: str, name: str, label: Any, value: Any) -> None:
             except _VE as exc:
                 err = exc.errors()[0]
                 raise UserError(f"{where} {'.'.join(map(str, err['loc']))}: {err['msg']}") from None
-    if name == "bsdf" and not (value in LOBES or isinstance(value, dict)):
+    if name == "bsdf" and not (isinstance(value, dict) or value in LOBES):
         raise UserError(f"{where} expected one of {', '.join(repr(m) for m in LOBES)} or a material mapping")
 
 

@@ -223,3 +223,16 @@ def test_score_of_a_mirror_truth_and_of_an_undetermined_sigma():
     est.diagnostics = {"undetermined": ["light_direction", "sigma"]}  # as distant on a plane: any σ fits
     row = score(cap, est)
     assert math.isnan(row["sigma_rel_error"]) and row["specular_rmse"] > 0
+
+
+def test_a_capture_without_a_specular_truth_has_no_specular_rmse_and_every_other_metric():
+    """A ``material.model: mitsuba`` render has no ``truth_specular`` (its BSDF is not split): the two specular
+    RMSEs are NaN, the lamp and σ errors are measured as on any capture (was a KeyError failing the task)."""
+    cap = analytic_capture(width=32, height=24)
+    est = truth_estimate(cap)
+    whole = score(cap, est)
+    bare = score(cap.replace(extra={k: v for k, v in cap.extra.items() if k != "truth_specular"}), est)
+    assert math.isnan(bare["specular_rmse"]) and math.isnan(bare["specular_rmse_rel"])
+    assert whole["specular_rmse"] < 1e-6  # the truth's own re-synthesis: float32 storage of the image
+    for key in ("lamp_position_error_pct", "sigma_rel_error", "ks_rel_error", "lamp_distance_true_m"):
+        assert bare[key] == whole[key]

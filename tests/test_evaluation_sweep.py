@@ -217,3 +217,18 @@ def test_an_object_axis_of_another_type_keeps_only_the_placement():
     board, sphere = (t.scene["object"] for t in load_sweep(doc, check_methods=False).tasks)
     assert board == {"type": "board", "size": [0.3, 0.3], "position": [0.0, 0.0, 0.01]}
     assert sphere == {"type": "sphere", "radius": 0.1, "position": [0.0, 0.0, 0.01]}
+
+
+def test_a_labelled_bsdf_axis_takes_a_mitsuba_material_whole():
+    """sweeps/render_compare.yaml: a ``bsdf`` label may be a material mapping (was a TypeError: a dict is not
+    hashable); a ``model: mitsuba`` material is the whole BSDF, so the base's ``kd`` is not carried into it
+    (was "material.kd: unknown key"), while a lobe family of ours keeps it."""
+    from pathlib import Path
+
+    sweep = load_sweep(Path(__file__).resolve().parents[1] / "sweeps" / "render_compare.yaml")
+    material = {t.config["bsdf"]: t.scene["material"] for t in sweep.tasks}
+    assert set(material) == {"torrance_sparrow", "ward", "pplastic"}
+    assert material["pplastic"]["model"] == "mitsuba" and "kd" not in material["pplastic"]
+    assert material["pplastic"]["bsdf"]["type"] == "pplastic"
+    assert material["ward"]["model"] == "ward" and material["ward"]["kd"] == [0.3, 0.4, 0.35]
+    assert len(sweep.tasks) == 4 * 3 * 3 * 2 * 4  # distances x cameras x materials x objects x methods, one seed
