@@ -9,6 +9,7 @@ import numpy as np
 from ..errors import UserError
 from .noise import CameraNoise, camera_noise, censored_pixels
 from .observation import Observation
+from ..physics.reflectance import channel_sum
 
 
 def fit_pixels(obs: Observation, *, max_pixels: int, saturation: float | None) -> np.ndarray:
@@ -23,7 +24,7 @@ def fit_pixels(obs: Observation, *, max_pixels: int, saturation: float | None) -
         use &= ~np.any(obs.specular >= saturation, axis=-1)
     n = int(use.sum())
     if n > max_pixels:
-        lum = np.where(use, obs.specular.mean(axis=-1), -np.inf).ravel()
+        lum = np.where(use, channel_sum(obs.specular) / 3, -np.inf).ravel()  # the mean, bit for bit
         keep = np.argpartition(lum, -max_pixels)[-max_pixels:]
         use = np.zeros(lum.shape, bool)
         use[keep] = True

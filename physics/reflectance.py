@@ -54,6 +54,16 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
+def channel_sum(v: np.ndarray) -> np.ndarray:
+    """``np.sum(v, axis=-1)`` of a ``[..., 3]`` array, shape ``[...]``, bit for bit (see :func:`_dot`).
+
+    A reduction over so short an axis costs several times two additions
+    (640×480×3: ~6 ms against ~1 ms); ``channel_sum(v) / 3`` is likewise
+    ``np.mean(v, axis=-1)`` (which divides the sum by the count).
+    """
+    return v[..., 0] + v[..., 1] + v[..., 2]
+
+
 def finite(x: np.ndarray) -> np.ndarray:
     """``np.nan_to_num(x)``: NaN to 0, ±inf to the largest float; ``x`` itself when all finite (no copy).
 
