@@ -441,9 +441,10 @@ def specular_image(capture: Capture, *, separation: str = "fit") -> np.ndarray:
             k = int(np.argmin(stack[:, surface].min(axis=(1, 2))))  # the image to name (only when refusing)
             _check_extremes(capture.name, f"pol{k}", hi, lo)
         spec, channel = separate_capture(capture, method=separation)[0], "pol<k>"
-        if hi is not None and np.all(np.isfinite(spec[surface])):
+        vals = spec[surface] if hi is not None else None
+        if hi is not None and np.all(np.isfinite(vals)):
             top = max(hi, -lo)  # the largest |stack| at the surface
-            if float(np.abs(spec[surface]).max()) <= 1e-6 * top:
+            if float(np.abs(vals).max()) <= 1e-6 * top:
                 raise UserError(
                     f"{capture.name}: channels pol<k>: no polarization signal: the analyzer images do not change "
                     "with the angle (specular = Imax - Imin = 0 everywhere)"
