@@ -221,7 +221,10 @@ class Capture:
     @property
     def surface_mask(self) -> np.ndarray:
         """``[H, W]`` bool: pixels that see a surface (finite ``P``)."""
-        return np.all(np.isfinite(self.P), axis=-1)
+        finite = np.isfinite(self.P)
+        if finite.shape[-1:] != (3,):
+            return np.all(finite, axis=-1)
+        return finite[..., 0] & finite[..., 1] & finite[..., 2]  # np.all over so short an axis costs ~8x
 
     @property
     def name(self) -> str:

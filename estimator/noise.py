@@ -257,4 +257,5 @@ def censored_pixels(capture: Any, noise: CameraNoise, surface: np.ndarray) -> np
     weight = ndimage.gaussian_filter(surface.astype(float), CENSOR_SMOOTH_PX)[..., None]
     with np.errstate(invalid="ignore", divide="ignore"):
         smooth = ndimage.gaussian_filter(mean, sigma) / weight
-    return surface & np.any(~(smooth >= CENSOR_SIGMAS * np.sqrt(noise.read_var)), axis=-1)
+    low = ~(smooth >= CENSOR_SIGMAS * np.sqrt(noise.read_var))
+    return surface & (low[..., 0] | low[..., 1] | low[..., 2])  # np.any(axis=-1), ~8x cheaper

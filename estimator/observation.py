@@ -20,7 +20,7 @@ from ..errors import UserError
 from .normals import normals_from_positions
 from .separation import separate_capture
 from ..physics.camera import camera_rays, project
-from ..physics.reflectance import normalize
+from ..physics.reflectance import channel_sum, normalize
 
 #: Default specular mask threshold, fraction of the peak pixel's mean specular (:func:`observe`).
 THRESHOLD = 0.05
@@ -412,7 +412,7 @@ def surface_geometry(capture: Capture) -> tuple[np.ndarray, np.ndarray, np.ndarr
     N = np.where(filled[..., None], N_fill, N)
     finite = (measured | filled) & _every_channel(np.isfinite(N))
     V = normalize(cam - np.where(finite[..., None], P, 0.0))
-    cos_r = np.where(finite, np.sum(np.where(finite[..., None], N, 0.0) * V, axis=-1), 0.0)
+    cos_r = np.where(finite, channel_sum(np.where(finite[..., None], N, 0.0) * V), 0.0)
     facing = finite & (cos_r > 0)
     return P, N, V, cos_r, facing & measured, facing & filled
 
@@ -441,9 +441,10 @@ def specular_image(capture: Capture, *, separation: str = "fit") -> np.ndarray:
             k = int(np.argmin(stack[:, surface].min(axis=(1, 2))))  # the image to name (only when refusing)
             _check_extremes(capture.name, f"pol{k}", hi, lo)
         spec, channel = separate_capture(capture, method=separation)[0], "pol<k>"
-        if hi is not None and np.all(np.isfinite(spec[surface])):
+        vals = spec[surface] if hi is not None else None
+        if hi is not None and np.all(np.isfinite(vals)):
             top = max(hi, -lo)  # the largest |stack| at the surface
-            if float(np.abs(spec[surface]).max()) <= 1e-6 * top:
+            if float(np.abs(vals).max()) <= 1e-6 * top:
                 raise UserError(
                     f"{capture.name}: channels pol<k>: no polarization signal: the analyzer images do not change "
                     "with the angle (specular = Imax - Imin = 0 everywhere)"
@@ -532,7 +533,7 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = THR
     filled &= _every_channel(np.isfinite(spec))
     located = surface | filled
     spec = np.where(located[..., None], spec, 0.0)
-    lum = spec.mean(axis=-1)
+    lum = channel_sum(spec) / 3  # spec.mean(axis=-1), bit for bit
     if surface.any() and np.ptp(lum[surface]) <= 1e-6 * np.abs(lum[surface]).max() and lum[surface].max() > 0:
         raise UserError(
             f"{capture.name}: specular: constant over the surface ({lum[surface].max():.4g}): no highlight, no signal"

@@ -91,7 +91,7 @@ from .observation import THRESHOLD, Observation, observe, subpixel_peak, surface
 from .options import Choice, Count, Fraction, Positive, forwards
 from .separation import SEPARATION_METHODS
 from .result import Estimate
-from ..physics.reflectance import mirror_direction, normalize, shading_geometry
+from ..physics.reflectance import channel_sum, mirror_direction, normalize, shading_geometry
 
 #: A finite real number (may be negative or zero).
 Real = Annotated[float, Field(allow_inf_nan=False)]
@@ -230,7 +230,7 @@ MODEL_ORIGIN_TOLERANCE_PX = 0.001
 
 def _brightness(obs: Observation) -> np.ndarray:
     """Mean specular over the channels, ``[H, W]``."""
-    return obs.specular.mean(axis=-1)
+    return channel_sum(obs.specular) / 3  # obs.specular.mean(axis=-1), bit for bit
 
 
 def _alpha2_at(obs: Observation, rc: np.ndarray, lamp: np.ndarray) -> float:

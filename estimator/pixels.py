@@ -9,6 +9,7 @@ import numpy as np
 from ..errors import UserError
 from .noise import CameraNoise, camera_noise, censored_pixels
 from .observation import Observation
+from ..physics.reflectance import channel_sum
 
 
 def fit_pixels(obs: Observation, *, max_pixels: int, saturation: float | None) -> np.ndarray:
@@ -23,14 +24,31 @@ def fit_pixels(obs: Observation, *, max_pixels: int, saturation: float | None) -
         use &= ~np.any(obs.specular >= saturation, axis=-1)
     n = int(use.sum())
     if n > max_pixels:
-        lum = np.where(use, obs.specular.mean(axis=-1), -np.inf).ravel()
-        keep = np.argpartition(lum, -max_pixels)[-max_pixels:]
+        lum = np.where(use, channel_sum(obs.specular) / 3, -np.inf).ravel()  # the mean, bit for bit
+        keep = _brightest(lum, np.flatnonzero(use), max_pixels)
         use = np.zeros(lum.shape, bool)
         use[keep] = True
         use = use.reshape(obs.surface.shape)
     if int(use.sum()) < 10:
         raise UserError(f"specular: only {int(use.sum())} usable pixels for the fit (saturation={saturation})")
     return use
+
+
+def _brightest(lum: np.ndarray, candidates: np.ndarray, k: int) -> np.ndarray:
+    """Indices of ``lum``'s ``k`` largest values, as ``np.argpartition(lum, -k)[-k:]`` picks them.
+
+    ``lum`` is ``-inf`` outside ``candidates`` (more than ``k`` of them). When
+    the ``k`` largest candidates are strictly above the rest, they are the
+    only set ``argpartition`` can return, and partitioning the candidates
+    alone finds them (640×480 board: ~1.5 ms against ~27 ms over the whole
+    image); on a tie at the k-th value the whole image is partitioned as
+    before, so that the same pixels win the tie.
+    """
+    vals = lum[candidates]
+    part = np.argpartition(vals, -k)
+    if vals[part[:-k]].max() < vals[part[-k:]].min():
+        return candidates[part[-k:]]
+    return np.argpartition(lum, -k)[-k:]
 
 
 def weighted_fit_pixels(capture: Any, obs: Observation, *, noise: str, max_pixels: int,

@@ -61,7 +61,7 @@ def _projected(stack: np.ndarray, angles_deg: np.ndarray, *, size: int = 5) -> t
     from scipy.ndimage import uniform_filter
 
     a, b, c = _coefficients(stack, angles_deg)
-    bs, cs = b.sum(axis=-1), c.sum(axis=-1)
+    bs, cs = b[..., 0] + b[..., 1] + b[..., 2], c[..., 0] + c[..., 1] + c[..., 2]  # sum(axis=-1), bit for bit
     nb = uniform_filter(bs, size, mode="constant") * size**2 - bs
     nc = uniform_filter(cs, size, mode="constant") * size**2 - cs
     norm = np.hypot(nb, nc)

@@ -64,7 +64,7 @@ from scipy.optimize import nnls
 
 from ..capture import Capture
 from ..errors import UserError
-from ..physics.reflectance import LOBES, peak_shape, roughness_for_ts_sigma, ts_sigma
+from ..physics.reflectance import LOBES, channel_sum, peak_shape, roughness_for_ts_sigma, ts_sigma
 from .fitting import log_regression, robust_fit
 from .lobes import FAMILIES
 from .noise import specular_variance
@@ -163,7 +163,7 @@ def segment_highlights(specular: np.ndarray, located: np.ndarray, *, smooth_px: 
     Highlights
         At least one highlight when any located pixel is positive.
     """
-    lum = np.where(located, np.nan_to_num(np.mean(specular, axis=-1)), 0.0)
+    lum = np.where(located, np.nan_to_num(channel_sum(specular) / 3), 0.0)  # the mean, bit for bit
     weight = ndimage.gaussian_filter(located.astype(float), smooth_px)
     with np.errstate(invalid="ignore", divide="ignore"):
         s = np.where(located & (weight > 0), ndimage.gaussian_filter(lum, smooth_px) / weight, 0.0)

@@ -33,7 +33,45 @@ def normalize(v: np.ndarray, axis: int = -1) -> np.ndarray:
     """Unit vectors along ``axis``; zero vectors give NaN."""
     v = np.asarray(v, dtype=float)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return v / np.linalg.norm(v, axis=axis, keepdims=True)
+        return v / _length(v, axis=axis, keepdims=True)
+
+
+def _length(v: np.ndarray, axis: int = -1, keepdims: bool = False) -> np.ndarray:
+    """Euclidean length of float vectors along ``axis``: ``np.linalg.norm``'s own arithmetic without its overhead."""
+    if axis in (-1, v.ndim - 1) and v.shape[-1] == 3:
+        squares = _dot(v, v)
+        return np.sqrt(squares[..., None] if keepdims else squares)
+    return np.sqrt(np.add.reduce(v * v, axis=axis, keepdims=keepdims))
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.sum(a * b, axis=-1)`` of 3-vectors, shape ``[...]``, bit for bit, without a reduction's overhead.
+
+    NumPy sums a last axis of length 3 left to right, ``(a₀b₀ + a₁b₁) + a₂b₂``,
+    which this spells out: the same float64 numbers in a few times less time
+    on a few hundred vectors (a fit's model, called hundreds of times).
+    """
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def channel_sum(v: np.ndarray) -> np.ndarray:
+    """``np.sum(v, axis=-1)`` of a ``[..., 3]`` array, shape ``[...]``, bit for bit (see :func:`_dot`).
+
+    A reduction over so short an axis costs several times two additions
+    (640×480×3: ~6 ms against ~1 ms); ``channel_sum(v) / 3`` is likewise
+    ``np.mean(v, axis=-1)`` (which divides the sum by the count).
+    """
+    return v[..., 0] + v[..., 1] + v[..., 2]
+
+
+def finite(x: np.ndarray) -> np.ndarray:
+    """``np.nan_to_num(x)``: NaN to 0, ±inf to the largest float; ``x`` itself when all finite (no copy).
+
+    The same numbers as ``nan_to_num`` for a float array, at the cost of one
+    ``isfinite`` pass when there is nothing to replace (a fit's model, called
+    hundreds of times per capture). Callers must not write into the result.
+    """
+    return x if np.isfinite(x).all() else np.nan_to_num(x)
 
 
 def tangent_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -87,13 +125,13 @@ def shading_geometry(P: np.ndarray, N: np.ndarray, camera_position: np.ndarray, 
     P = np.asarray(P, dtype=float)
     N = np.asarray(N, dtype=float)
     to_light = np.asarray(lamp_position, dtype=float) - P
-    r = np.linalg.norm(to_light, axis=-1)
+    r = _length(to_light)
     light = to_light / r[..., None]
     view = normalize(np.asarray(camera_position, dtype=float) - P) if view is None else view
     half = normalize(light + view)
-    cos_r = np.sum(N * view, axis=-1)
-    cos_i = np.sum(N * light, axis=-1)
-    alpha = np.arccos(np.clip(np.sum(N * half, axis=-1), -1.0, 1.0))
+    cos_r = _dot(N, view)
+    cos_i = _dot(N, light)
+    alpha = np.arccos(np.clip(_dot(N, half), -1.0, 1.0))
     return Geometry(view, light, r, cos_r, cos_i, alpha)
 
 
