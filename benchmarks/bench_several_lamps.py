@@ -35,9 +35,9 @@ noisy rows ran beside other work of this session, so they are upper bounds.
 
 With the count's s² at least the fit's own loss floor (``loss_floor``;
 same command, 216 s beside a 2-worker report regeneration): right count
-100 % in every row, every median and worst error as above (sphere high
-1.577/3.377 %, the row the floor could have touched, counted one lamp in 5
-of 5).
+100 % in every row (noise-free ones included, where the floor binds),
+``two`` and ``two-dim`` errors as above; one-lamp rows: board
+0.200/0.260 % low, 0.462/0.818 % high; sphere 0.093/1.527 %, 1.577/3.377 %.
 
 Usage::
 
