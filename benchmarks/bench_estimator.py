@@ -13,6 +13,14 @@ and with automatic lobe choice, against issue 14's goal (a named lobe ≤ 0.3 s 
 ``full``'s seconds before that work (:data:`BEFORE`; at other resolutions the
 ratio compares unlike captures). Run it on one core: ``OMP_NUM_THREADS=1``.
 
+Measured after the reduction-free geometry and channel sums (bit for bit
+the same estimates; back to back with the code before, on the 2 shared
+cores under a load of 2–3): ``full`` with a named lobe, board 0.753 →
+0.484 s (observe 0.287 → 0.173, full stage 0.398 → 0.256), sphere 0.628 →
+0.547 s; 5.4× faster than :data:`BEFORE` on the board, the goal (0.3 s)
+not met: ``observe`` ~0.18 s, the seven short multi-start fits ~0.16 s,
+the final robust fit ~0.08 s, the several-highlights warning ~0.04 s.
+
 Usage::
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_estimator.py --repeat 2
