@@ -111,17 +111,19 @@ class PointLampModel:
     def _lobe(self, x: np.ndarray) -> tuple:
         """``f = F / r²`` where lit (else 0), shape (n,), the geometry and where lit, at ``x``.
 
-        The last ``x``'s are kept: the solver asks for the residuals and then
-        the Jacobian at the same point, which share them.
+        The last lamp's and roughness's are kept: the solver asks for the
+        residuals and then the Jacobian at the same point, which share them,
+        and the colours solved at that point (:meth:`linear_colours`) too.
         """
-        if self._at is not None and np.array_equal(self._at[0], x):
+        key = x[[0, 1, 2, 6]]  # the lamp and the roughness: not the colour
+        if self._at is not None and np.array_equal(self._at[0], key):
             return self._at[1]
         g = shading_geometry(self.P, self.N, self.camera, x[:3], view=self.view)
         lit = (g.cos_i > 0) & (g.cos_r > 0)
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             F = radiance(self.lobe, g.cos_i, g.cos_r, g.alpha, x[6])
             f = np.where(lit, finite(F / g.r**2), 0.0)
-        self._at = (np.array(x, dtype=float), (f, g, lit))
+        self._at = (np.array(key, dtype=float), (f, g, lit))
         return f, g, lit
 
     def _weigh(self, r: np.ndarray) -> np.ndarray:
@@ -164,13 +166,20 @@ class PointLampModel:
             J *= self._inv
         return J.reshape(7, -1).T
 
-    def linear_ks(self, x: np.ndarray) -> np.ndarray:
-        """The (weighted) least-squares colour for ``x``'s lamp and roughness: ``Ks = Σ f o / Σ f²`` per channel."""
+    def linear_colours(self, x: np.ndarray) -> np.ndarray:
+        """``x`` with the (weighted) non-negative least-squares colour for its lamp and roughness.
+
+        Per channel ``Ks = max(Σ w f o / Σ w f², 0)`` (``w = 1/std²``); a
+        channel the lamp does not light keeps ``x``'s.
+        """
         f = self._lobe(x)[0]
         wt = np.ones_like(self.observed) if self._inv is None else self._inv**2
         fw = f[:, None] * wt
         den = np.sum(fw * f[:, None], axis=0)
-        return np.where(den > 0, np.sum(fw * self.observed, axis=0) / np.where(den > 0, den, 1.0), x[3:6])
+        out = np.array(x, dtype=float)
+        out[3:6] = np.where(den > 0, np.maximum(np.sum(fw * self.observed, axis=0) / np.where(den > 0, den, 1.0), 0.0),
+                            x[3:6])
+        return out
 
 
 #: About how many pixels the multi-start's short fits use (every k-th of the fitted pixels).
@@ -275,9 +284,12 @@ def full_estimate(
     Speed (issue 14; ``benchmarks/bench_estimator.py``): the start is the
     first stage on a lattice of ~:data:`START_PIXELS` specular pixels rather
     than on all of them (~53 000 on the 640×480 board), the multi-start's
-    short fits run on ~:data:`TRIAL_PIXELS` of the fitted pixels, and the
-    model evaluates its geometry once per parameter vector for the
-    residuals and the Jacobian. Only the final fit sees every fitted pixel
+    short fits run on ~:data:`TRIAL_PIXELS` of the fitted pixels by
+    variable projection (the colour solved linearly at every step, the
+    solver moving lamp and roughness only:
+    :func:`~nearlight.estimator.several.short_fit`), and the model
+    evaluates its geometry once per lamp and roughness for the residuals,
+    the Jacobian and the solved colour. Only the final fit sees every fitted pixel
     (``max_pixels``), as before; it lands on the same minimum as the
     whole-mask start did (analytic 640×480 board and sphere: the lamp
     within 1e-14 m, σ within 1e-14 relative; 160×120 with camera noise:
@@ -419,7 +431,6 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
         x0 = best.copy()
         x0[6] = roughness_for_ts_sigma(family, best[6])
         c = coarse.with_lobe(family)
-        x0[3:6] = c.linear_ks(x0)
         x0 = short_fit(c, x0, obs.scale)["x"]
         shorts[family] = (x0, _chi2(c, x0))
     first = min(shorts, key=lambda k: shorts[k][1])

@@ -457,29 +457,69 @@ def typical_scale(x: np.ndarray, scale: float) -> np.ndarray:
 
 
 def short_fit(model: Any, x0: np.ndarray, scale: float) -> dict:
-    """A linear-loss fit of a one- or several-lamp model from ``x0`` (clipped to :func:`lamp_bounds`).
+    """A linear-loss fit of a one- or several-lamp model from ``x0``, by variable projection.
 
-    ``full``'s short fit: 30 evaluations for one lamp, 100 for several (a
-    two-lamp start from a dim lamp's residual was still 10⁹ times the
-    optimum's χ² after 30, and another family's, stuck nearer, won the choice).
+    The colours enter the model linearly: at every step they are solved for
+    (non-negative least squares, the model's ``linear_colours``) and the
+    solver moves only the lamps' positions and the roughness (3K + 1
+    unknowns), with Kaufman's Jacobian (the full one with the solved
+    colours' columns projected out). Measured against the plain fit of
+    all 6K + 1 parameters from the same starts (640×480 analytic board and
+    sphere, noise-free and noisy): every one of the seven one-lamp starts
+    reached the optimum, where the plain fit left three or four of them
+    far off after its 30 evaluations, in about half the evaluations.
+    Budget: 30 evaluations for one lamp, 100 for several (a two-lamp start
+    from a dim lamp's residual was still 10⁹ times the optimum's χ² after
+    30 of the plain fit, and another family's, stuck nearer, won the choice).
 
     Parameters
     ----------
     model : PointLampModel or SeveralLampModel
     x0 : ndarray, shape (6K + 1,)
-        Start.
+        Start (clipped to :func:`lamp_bounds`; its colours are not used).
     scale : float
         Camera–highlight distance (m), see :func:`typical_scale` (of the unclipped ``x0``).
 
     Returns
     -------
     dict
-        :func:`~nearlight.estimator.fitting.robust_fit`'s result.
+        :func:`~nearlight.estimator.fitting.robust_fit`'s result, its ``x``
+        the whole ``(6K + 1,)`` parameters with the solved colours and
+        ``cov`` that of the free parameters only.
     """
     lower, upper = lamp_bounds(len(x0))
-    return robust_fit(model.residuals, np.clip(x0, lower, upper), typical=typical_scale(x0, scale), lower=lower,
-                      upper=upper, loss="linear", f_scale=1.0, jac=model.jacobian,
-                      max_nfev=100 if len(x0) > 7 else 30)
+    start = np.clip(x0, lower, upper)
+    colour = np.zeros(len(x0), dtype=bool)
+    for i in range((len(x0) - 1) // 6):
+        colour[6 * i + 3 : 6 * i + 6] = True
+    free = ~colour
+    last: list = [None, None]
+
+    def solved(u: np.ndarray) -> np.ndarray:
+        if last[0] is None or not np.array_equal(last[0], u):
+            x = start.copy()
+            x[free] = u
+            last[:] = [np.array(u, dtype=float), model.linear_colours(x)]
+        return last[1]
+
+    def residuals(u: np.ndarray) -> np.ndarray:
+        return model.residuals(solved(u))
+
+    def jacobian(u: np.ndarray) -> np.ndarray:
+        x = solved(u)
+        J = model.jacobian(x)
+        Jc, Jf = J[:, colour & (x > 0)], J[:, free]
+        if Jc.shape[1] == 0:
+            return Jf
+        try:  # the colours' Gram matrix is small (≤ 3K × 3K) and, for one lamp, diagonal
+            return Jf - Jc @ np.linalg.solve(Jc.T @ Jc, Jc.T @ Jf)
+        except np.linalg.LinAlgError:  # two lamps alike: their colours are not separately determined
+            return Jf - Jc @ np.linalg.lstsq(Jc, Jf, rcond=None)[0]
+
+    result = robust_fit(residuals, start[free], typical=typical_scale(x0, scale)[free], lower=lower[free],
+                        upper=upper[free], loss="linear", f_scale=1.0, jac=jacobian,
+                        max_nfev=100 if len(x0) > 7 else 30)
+    return {**result, "x": solved(result["x"]).copy()}
 
 
 def final_fit(model: Any, x0: np.ndarray, scale: float, *, loss: str, f_scale: float | None,
@@ -726,7 +766,7 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
         for fam in families:
             m = SeveralLampModel(base.with_lobe(fam), k).subset(slice(None, None, stride))
             for x0 in candidates:
-                xf = short_fit(m, m.linear_colours(_convert_roughness(x0, "torrance_sparrow", fam)), obs.scale)["x"]
+                xf = short_fit(m, _convert_roughness(x0, "torrance_sparrow", fam), obs.scale)["x"]
                 c = m.chi2(xf)
                 if fam not in shorts or c < shorts[fam][1]:
                     shorts[fam] = (xf, c)
