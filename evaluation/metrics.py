@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from ..physics.polarization import through_polarizer
-from ..physics.reflectance import LOBES, shading_geometry, ts_sigma
+from ..physics.reflectance import LOBES, mitsuba_ts_sigma, shading_geometry, ts_sigma
 from .resynthesis import fitted_stage, resynthesize
 
 #: Metric columns (all "lower is better"), in table order, with their units.
@@ -307,10 +307,16 @@ def truth_sigma(bsdf: Mapping[str, Any]) -> float:
     A model with a closed form (:data:`~nearlight.physics.reflectance.LOBES`):
     the Torrance–Sparrow σ of its lobe's small-angle width
     (:func:`~nearlight.physics.reflectance.ts_sigma`: Torrance–Sparrow its
-    ``sigma``, Ward and Beckmann ``alpha / √2``, GGX ``alpha / 2``); any
-    other model (a Mitsuba plug-in): NaN (no σ to compare with).
+    ``sigma``, Ward and Beckmann ``alpha / √2``, GGX ``alpha / 2``); a
+    Mitsuba BSDF (``{"model": "mitsuba", "bsdf": {...}}``): its microfacet
+    distribution's σ (:func:`~nearlight.physics.reflectance.mitsuba_ts_sigma`,
+    e.g. ``pplastic``); any other (no isotropic microfacet roughness): NaN,
+    no σ to compare with.
     """
     model = bsdf.get("model")
+    if model == "mitsuba":
+        sigma = mitsuba_ts_sigma(bsdf["bsdf"])
+        return math.nan if sigma is None else sigma
     if model not in LOBES:
         return math.nan
     return ts_sigma(model, float(bsdf[LOBES[model].roughness_key]))

@@ -23,6 +23,7 @@ colour-valued functions below multiply it out.
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Callable, Mapping
 from typing import Any, NamedTuple
 
@@ -274,6 +275,40 @@ def ts_sigma(model: str, roughness: float) -> float:
 def roughness_for_ts_sigma(model: str, sigma: float) -> float:
     """``model``'s roughness whose lobe has the small-angle width of Torrance–Sparrow ``sigma``: the inverse of :func:`ts_sigma`."""
     return sigma / _lobe(model).ts_sigma_per_roughness
+
+
+#: Mitsuba 3's isotropic microfacet BSDF plug-ins: each takes ``distribution`` (default ``beckmann``) and a
+#: roughness ``alpha`` (default 0.1), or ``alpha_u``/``alpha_v`` (anisotropic).
+MITSUBA_MICROFACETS = ("roughconductor", "roughdielectric", "roughplastic", "pplastic")
+
+
+def mitsuba_ts_sigma(bsdf: Mapping[str, Any]) -> float | None:
+    """Torrance–Sparrow σ (radians) of a Mitsuba microfacet BSDF dict, by :func:`ts_sigma` of its distribution.
+
+    Beckmann ``alpha / √2``, GGX ``alpha / 2`` (:data:`LOBES`); Mitsuba's
+    defaults fill a missing ``distribution`` (Beckmann) or ``alpha`` (0.1).
+    ``pplastic``'s lobe is its distribution's: measured (Mitsuba 3.9.1), its
+    specular lobe is the Beckmann conductor's to 0.2 %
+    (:mod:`nearlight.rendercompare.lobes`).
+
+    Parameters
+    ----------
+    bsdf : mapping
+        A Mitsuba BSDF dict (``{"type": "pplastic", "alpha": 0.14, ...}``).
+
+    Returns
+    -------
+    float or None
+        None when it is not one of :data:`MITSUBA_MICROFACETS`, is
+        anisotropic (``alpha_u``/``alpha_v``), has an ``alpha`` that is not
+        a number (a texture dict) or another distribution.
+    """
+    if bsdf.get("type") not in MITSUBA_MICROFACETS or "alpha_u" in bsdf or "alpha_v" in bsdf:
+        return None
+    distribution, alpha = bsdf.get("distribution", "beckmann"), bsdf.get("alpha", 0.1)
+    if distribution not in ("beckmann", "ggx") or not isinstance(alpha, numbers.Real) or isinstance(alpha, bool):
+        return None
+    return ts_sigma(distribution, float(alpha))
 
 
 def peak_shape(model: str, roughness: float) -> float:

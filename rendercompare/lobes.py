@@ -7,11 +7,10 @@ and whose roughness ``alpha`` is a differentiable parameter (its key in
 separated specular image.
 
 σ, the Torrance–Sparrow slope deviation of docs/physics.md, from a microfacet
-``alpha`` at small roughness (tan θh ≈ θh):
-
-- Beckmann: ``D ∝ exp(−tan²θh / α²)``, so ``exp(−θh² / 2σ²)`` with ``σ = α/√2``;
-- GGX: ``D ∝ (α² + tan²θh)⁻² ≈ α⁻⁴ (1 − 2 tan²θh / α²) ≈ α⁻⁴ exp(−2θh² / α²)``
-  near the peak, so ``σ = α/2``.
+``alpha`` is :func:`nearlight.physics.reflectance.mitsuba_ts_sigma` of the
+lobe's dict (Beckmann ``α/√2``, GGX ``α/2``, the small-angle widths of
+:data:`nearlight.physics.reflectance.LOBES`), the σ the evaluation compares
+with for a capture rendered in that Mitsuba material.
 
 The project's own ``nearlight_bsdf`` (:mod:`nearlight.generator.bsdfs`) is not
 in the table: it keeps its roughness and Ks as plain Python floats, which
@@ -22,8 +21,9 @@ gradient. The Beckmann conductor is the nearest differentiable lobe to it.
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any
+
+from ..physics.reflectance import mitsuba_ts_sigma
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,8 +36,6 @@ class Lobe:
         The Mitsuba BSDF dict (``mi.load_dict``), without its roughness.
     alpha_key : str
         Key of the roughness ``alpha`` in ``mi.traverse`` of the loaded BSDF.
-    sigma_per_alpha : float
-        σ / alpha (radians per unit alpha) of the microfacet distribution.
     polarizing : bool
         Whether its Mueller matrix polarizes (then ``render-compare`` can
         model the lamp's polarizer); ``roughplastic`` returns a depolarizing
@@ -46,8 +44,12 @@ class Lobe:
 
     bsdf: dict[str, Any]
     alpha_key: str
-    sigma_per_alpha: float
     polarizing: bool = True
+
+    @property
+    def sigma_per_alpha(self) -> float:
+        """σ / alpha (radians per unit alpha) of the microfacet distribution (σ is linear in alpha)."""
+        return mitsuba_ts_sigma({**self.bsdf, "alpha": 1.0})
 
     def sigma(self, alpha: float) -> float:
         """Torrance–Sparrow σ (radians) of microfacet roughness ``alpha``."""
@@ -57,9 +59,6 @@ class Lobe:
         """Microfacet roughness ``alpha`` of Torrance–Sparrow σ (radians)."""
         return sigma / self.sigma_per_alpha
 
-
-BECKMANN = 1.0 / math.sqrt(2.0)
-GGX = 0.5
 
 #: The lobes by name (option ``bsdf`` of ``render-compare``). Conductors with
 #: ``material: none`` reflect everything (Fresnel factor 1); the plastics keep
@@ -71,9 +70,9 @@ GGX = 0.5
 #: predicts no polarized light (its Mueller matrix depolarizes: the fit with
 #: the lamp's polarizer saw a zero lobe), so it is fitted unpolarized.
 LOBES: dict[str, Lobe] = {
-    "beckmann": Lobe({"type": "roughconductor", "material": "none", "distribution": "beckmann"}, "alpha.value", BECKMANN),
-    "ggx": Lobe({"type": "roughconductor", "material": "none", "distribution": "ggx"}, "alpha.value", GGX),
+    "beckmann": Lobe({"type": "roughconductor", "material": "none", "distribution": "beckmann"}, "alpha.value"),
+    "ggx": Lobe({"type": "roughconductor", "material": "none", "distribution": "ggx"}, "alpha.value"),
     "roughplastic": Lobe({"type": "roughplastic", "distribution": "beckmann", "diffuse_reflectance": 0.0}, "alpha",
-                         BECKMANN, polarizing=False),
-    "pplastic": Lobe({"type": "pplastic", "diffuse_reflectance": 0.0}, "alpha.value", BECKMANN),
+                         polarizing=False),
+    "pplastic": Lobe({"type": "pplastic", "diffuse_reflectance": 0.0}, "alpha.value"),
 }

@@ -236,3 +236,14 @@ def test_a_capture_without_a_specular_truth_has_no_specular_rmse_and_every_other
     assert whole["specular_rmse"] < 1e-6  # the truth's own re-synthesis: float32 storage of the image
     for key in ("lamp_position_error_pct", "sigma_rel_error", "ks_rel_error", "lamp_distance_true_m"):
         assert bare[key] == whole[key]
+
+
+def test_truth_sigma_of_a_mitsuba_material_is_its_microfacet_width():
+    """A ``material.model: mitsuba`` capture's truth (as the generator writes it) gets the σ of its distribution."""
+    from nearlight.generator.scene import MitsubaMaterial
+
+    pplastic = {"type": "pplastic", "diffuse_reflectance": {"type": "rgb", "value": [0.3, 0.4, 0.35]},
+                "alpha": 0.14142135623730950}  # sweeps/render_compare.yaml's: Beckmann alpha = √2 · 0.1
+    truth = MitsubaMaterial(model="mitsuba", bsdf=pplastic).truth()
+    assert metrics.truth_sigma(truth) == pytest.approx(0.1, rel=1e-12)
+    assert math.isnan(metrics.truth_sigma({"model": "mitsuba", "bsdf": {"type": "diffuse"}}))

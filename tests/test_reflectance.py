@@ -147,3 +147,21 @@ def test_convert_bsdf_keeps_the_peak_and_round_trips(model):
     back = convert_bsdf(other, "torrance_sparrow")
     np.testing.assert_allclose(back["ks"], ts["ks"], rtol=1e-12)
     assert back["sigma"] == pytest.approx(ts["sigma"], rel=1e-12)
+
+
+def test_mitsuba_ts_sigma_of_microfacet_bsdfs():
+    from nearlight.physics.reflectance import mitsuba_ts_sigma
+
+    # Beckmann exp(−tan²θ/α²) = exp(−θ²/2σ²) at small θ: σ = α/√2, so α = 0.1·√2 gives σ = 0.1 (closed form);
+    # pplastic, roughconductor and roughplastic default to Beckmann in Mitsuba 3
+    for kind in ("pplastic", "roughconductor", "roughplastic"):
+        assert mitsuba_ts_sigma({"type": kind, "alpha": 0.1 * np.sqrt(2.0)}) == pytest.approx(0.1, rel=1e-12)
+    # GGX (α² + tan²θ)⁻² ∝ exp(−2θ²/α²) at small θ: σ = α/2, physics' own GGX width
+    ggx = {"type": "roughconductor", "distribution": "ggx", "alpha": 0.2}
+    assert mitsuba_ts_sigma(ggx) == pytest.approx(0.1, rel=1e-12) == ts_sigma("ggx", 0.2)
+    assert mitsuba_ts_sigma({"type": "pplastic"}) == pytest.approx(0.1 / np.sqrt(2.0))  # Mitsuba's default alpha 0.1
+    # no isotropic microfacet roughness: no σ
+    for bsdf in ({"type": "diffuse"}, {"type": "conductor"}, {"type": "roughconductor", "alpha_u": 0.1, "alpha_v": 0.2},
+                 {"type": "pplastic", "alpha": {"type": "bitmap", "filename": "a.exr"}},
+                 {"type": "roughconductor", "distribution": "phong", "alpha": 0.1}):
+        assert mitsuba_ts_sigma(bsdf) is None

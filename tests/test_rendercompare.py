@@ -134,3 +134,44 @@ def test_without_the_renderer_it_says_what_to_install(tmp_path, monkeypatch, cap
                         lambda name, *a: None if name in ("mitsuba", "drjit") else find_spec(name, *a))  # fmt: skip
     assert main(["estimate", str(cap), "--method", "render-compare"]) == 2
     assert capsys.readouterr() == ("", "nearlight estimate: needs the renderer: pip install 'nearlight[render]'\n")
+
+
+class _Bowl:
+    """A stand-in for PixelModel: the loss is the squared distance to a lamp and an alpha, NaN on one side."""
+
+    def __init__(self, lamp, alpha):
+        self.lamp, self.alpha = np.asarray(lamp), alpha
+
+    def loss_and_grad(self, lamp, alpha):
+        if lamp[2] < 0:  # a lamp behind the surface: a dark lobe, no loss
+            return np.nan, np.full(3, np.nan), np.nan
+        return float(np.sum((lamp - self.lamp) ** 2) + (alpha - self.alpha) ** 2), np.zeros(3), 0.0
+
+
+def test_starts_are_ranked_by_their_loss():
+    from nearlight.rendercompare.method import rank_starts
+
+    model = _Bowl([0.1, 0.2, 0.3], 0.14)
+    # the first (paper-init's) is far off, one start has no loss, the fourth is nearest
+    starts = [(np.array([0.5, 0.5, 0.9]), 0.3), (np.array([0.0, 0.0, -0.1]), 0.1),
+              (np.array([0.1, 0.2, 0.6]), 0.14), (np.array([0.1, 0.25, 0.3]), 0.15)]  # fmt: skip
+    order, losses = rank_starts(model, starts)
+    assert order == [3, 2, 0, 1] and len(losses) == 4 and np.isnan(losses[1])
+    assert losses[3] == pytest.approx(0.05**2 + 0.01**2)  # 5 cm and 0.01 of alpha from the bowl's bottom
+    assert rank_starts(model, [starts[1], starts[1]])[0] == [0, 1]  # no finite loss: in their order
+
+
+@pytest.mark.render
+def test_starts_are_recorded_and_the_best_fit_is_reported():
+    cap = analytic_capture(width=48, height=36)
+    est = estimate(cap, method="render-compare", n_starts=3, n_fits=2)
+    stage = est.stages["render-compare"]
+    starts = stage["starts"]
+    losses = [s["loss"] for s in starts]
+    fitted = [i for i, s in enumerate(starts) if s["fit_loss"] is not None]
+    assert len(starts) == 4 and sorted(fitted) == sorted(np.argsort(losses)[:2].tolist())  # paper-init's and 3 more
+    np.testing.assert_allclose(starts[0]["lamp_position"], est.stages["init"]["lamp_position"])
+    assert stage["start"] == min(fitted, key=lambda i: starts[i]["fit_loss"])
+    assert stage["loss"] == starts[stage["start"]]["fit_loss"] and stage["loss_curve"][0] == losses[stage["start"]]
+    alone = estimate(cap, method="render-compare", n_starts=0, n_fits=1).stages["render-compare"]
+    assert len(alone["starts"]) == 1 and alone["start"] == 0
