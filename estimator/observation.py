@@ -20,7 +20,7 @@ from ..errors import UserError
 from .normals import normals_from_positions
 from .separation import separate_capture
 from ..physics.camera import camera_rays, project
-from ..physics.reflectance import channel_sum, normalize
+from ..physics.reflectance import channel_sum, every_channel, normalize
 
 #: Default specular mask threshold, fraction of the peak pixel's mean specular (:func:`observe`).
 THRESHOLD = 0.05
@@ -97,12 +97,6 @@ class Observation:
         return self.P[self.peak]
 
 
-def _every_channel(b: np.ndarray) -> np.ndarray:
-    """``np.all(b, axis=-1)`` of a boolean ``[..., 3]`` array, shape ``[...]``: two ``&`` (a reduction over so
-    short an axis costs ten times as much)."""
-    return b[..., 0] & b[..., 1] & b[..., 2]
-
-
 def _check_shapes(capture: Capture) -> None:
     name, hw = capture.name, (capture.height, capture.width)
     if np.shape(capture.P) != (*hw, 3):
@@ -137,7 +131,7 @@ def _fitted_rays(capture: Capture) -> tuple[np.ndarray, float] | None:
     """
     H, W = capture.height, capture.width
     P = np.asarray(capture.P, dtype=float)
-    finite = _every_channel(np.isfinite(P))
+    finite = every_channel(np.isfinite(P))
     idx = np.flatnonzero(finite)
     if idx.size < 8:
         return None
@@ -204,7 +198,7 @@ def pixel_ray_error(capture: Capture) -> tuple[np.ndarray, np.ndarray]:
     H, W = capture.height, capture.width
     C = np.asarray(capture.camera.position, dtype=float)
     P = np.asarray(capture.P, dtype=float)
-    finite = _every_channel(np.isfinite(P))
+    finite = every_channel(np.isfinite(P))
     d = np.where(finite[..., None], P - C, np.nan)
     error = np.full((H, W), np.nan)
     behind = np.zeros((H, W), bool)
@@ -283,7 +277,7 @@ def enclosed_holes(P: np.ndarray) -> np.ndarray:
     """
     from scipy.ndimage import binary_fill_holes
 
-    finite = _every_channel(np.isfinite(P))
+    finite = every_channel(np.isfinite(P))
     return binary_fill_holes(finite) & ~finite
 
 
@@ -332,7 +326,7 @@ def fill_range_holes(P: np.ndarray, holes: np.ndarray, rays: np.ndarray, camera_
 
     P = np.asarray(P, dtype=float)
     C = np.asarray(camera_position, dtype=float)
-    finite = _every_channel(np.isfinite(P))
+    finite = every_channel(np.isfinite(P))
     P_fill = np.full(P.shape, np.nan)
     N_fill = np.full(P.shape, np.nan)
     labels, _ = label(holes, structure=np.ones((3, 3)))
@@ -396,21 +390,21 @@ def surface_geometry(capture: Capture) -> tuple[np.ndarray, np.ndarray, np.ndarr
     _check_shapes(capture)
     cam = np.asarray(capture.camera.position, dtype=float)
     P = np.asarray(capture.P, dtype=float)
-    measured = _every_channel(np.isfinite(P))
+    measured = every_channel(np.isfinite(P))
     holes = enclosed_holes(P)
     rays = pixel_rays(capture) if holes.any() else None
     if rays is None:
         P_fill = N_fill = np.full(P.shape, np.nan)
     else:
         P_fill, N_fill = fill_range_holes(P, holes, rays, cam)
-    filled = _every_channel(np.isfinite(P_fill))
+    filled = every_channel(np.isfinite(P_fill))
     P = np.where(filled[..., None], P_fill, P)
     if capture.N is not None:
         N = normalize(np.asarray(capture.N, dtype=float))
     else:
         N = normals_from_positions(P, cam)
     N = np.where(filled[..., None], N_fill, N)
-    finite = (measured | filled) & _every_channel(np.isfinite(N))
+    finite = (measured | filled) & every_channel(np.isfinite(N))
     V = normalize(cam - np.where(finite[..., None], P, 0.0))
     cos_r = np.where(finite, channel_sum(np.where(finite[..., None], N, 0.0) * V), 0.0)
     facing = finite & (cos_r > 0)
@@ -458,7 +452,7 @@ def specular_image(capture: Capture, *, separation: str = "fit") -> np.ndarray:
 
 
 def _check_finite(name: str, channel: str, img: np.ndarray, surface: np.ndarray) -> None:
-    bad = surface & ~_every_channel(np.isfinite(img))
+    bad = surface & ~every_channel(np.isfinite(img))
     if bad.any():
         i, j = np.argwhere(bad)[0]
         raise UserError(f"{name}: channel {channel}: NaN or Inf at surface pixel (row {i}, column {j})")
@@ -530,7 +524,7 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = THR
     P, N, V, cos_r, surface, filled = surface_geometry(capture)
     check_rays(capture)
     spec = specular_image(capture, separation=separation)
-    filled &= _every_channel(np.isfinite(spec))
+    filled &= every_channel(np.isfinite(spec))
     located = surface | filled
     spec = np.where(located[..., None], spec, 0.0)
     lum = channel_sum(spec) / 3  # spec.mean(axis=-1), bit for bit
@@ -543,7 +537,7 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = THR
     peak_value = lum[peak]
     if not surface.any() or not peak_value > 0:
         raise UserError(f"{capture.name}: specular: no signal: no specular pixel on the surface above 0")
-    mask = usable & surface & _every_channel(spec > 0) & (lum >= threshold * peak_value)
+    mask = usable & surface & every_channel(spec > 0) & (lum >= threshold * peak_value)
     if mask.sum() < MIN_SPECULAR_PIXELS:
         raise UserError(
             f"{capture.name}: specular: only {int(mask.sum())} pixels above threshold {threshold} x peak "

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..physics.polarization import linear_stokes, separate_extrema, separate_stokes
+from ..physics.reflectance import channel_sum
 
 
 def _maxmin(stack: np.ndarray, angles_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -61,7 +62,7 @@ def _projected(stack: np.ndarray, angles_deg: np.ndarray, *, size: int = 5) -> t
     from scipy.ndimage import uniform_filter
 
     a, b, c = _coefficients(stack, angles_deg)
-    bs, cs = b[..., 0] + b[..., 1] + b[..., 2], c[..., 0] + c[..., 1] + c[..., 2]  # sum(axis=-1), bit for bit
+    bs, cs = channel_sum(b), channel_sum(c)
     nb = uniform_filter(bs, size, mode="constant") * size**2 - bs
     nc = uniform_filter(cs, size, mode="constant") * size**2 - cs
     norm = np.hypot(nb, nc)
