@@ -248,9 +248,8 @@ def check_rays(capture: Capture) -> None:
 
 def _check_signal(name: str, channel: str, img: np.ndarray, surface: np.ndarray) -> None:
     """Refuse radiance with no signal at the surface: all <= 0, mostly negative, or constant."""
-    vals = img[surface]
-    if vals.size:
-        _check_extremes(name, channel, float(vals.max()), float(vals.min()))
+    if surface.any():
+        _check_extremes(name, channel, *_extremes(img, img, surface))
 
 
 def _check_extremes(name: str, channel: str, hi: float, lo: float) -> None:
@@ -273,12 +272,18 @@ def enclosed_holes(P: np.ndarray) -> np.ndarray:
 
     A range hole is a set of pixels without range not connected (4-connected)
     to the image border through other such pixels: the background and holes
-    open to it are not holes (a fit there would extrapolate).
+    open to it are not holes (a fit there would extrapolate): the components
+    of those pixels (4-connected) that touch no edge of the image, the
+    pixels :func:`scipy.ndimage.binary_fill_holes` fills, in ~1/3 of its time.
     """
-    from scipy.ndimage import binary_fill_holes
+    from scipy.ndimage import label
 
-    finite = every_channel(np.isfinite(P))
-    return binary_fill_holes(finite) & ~finite
+    labels, n = label(~every_channel(np.isfinite(P)))
+    enclosed = np.ones(n + 1, bool)
+    enclosed[0] = False  # pixels with range
+    enclosed[labels[[0, -1], :]] = False
+    enclosed[labels[:, [0, -1]]] = False
+    return enclosed[labels]
 
 
 def fill_range_holes(P: np.ndarray, holes: np.ndarray, rays: np.ndarray, camera_position: np.ndarray, *,
@@ -422,33 +427,41 @@ def specular_image(capture: Capture, *, separation: str = "fit") -> np.ndarray:
     _check_shapes(capture)
     surface = capture.surface_mask
     if capture.specular is not None:
-        spec, channel = np.asarray(capture.specular, dtype=float), "specular"
-    elif capture.stack is not None:
-        stack = np.asarray(capture.stack)
-        # one pass over the stack for every check: its extremes over the angles, per pixel and channel
-        high, low = (stack.max(axis=0), stack.min(axis=0)) if stack.size else (None, None)
-        if high is not None:
-            _check_finite(capture.name, "pol<k>", high + low, surface)
-        hi, lo = (float(high[surface].max()), float(low[surface].min())) if high is not None and surface.any() \
-            else (None, None)
-        if hi is not None and (hi <= 0 or -lo > hi):
-            k = int(np.argmin(stack[:, surface].min(axis=(1, 2))))  # the image to name (only when refusing)
-            _check_extremes(capture.name, f"pol{k}", hi, lo)
-        spec, channel = separate_capture(capture, method=separation)[0], "pol<k>"
-        vals = spec[surface] if hi is not None else None
-        if hi is not None and np.all(np.isfinite(vals)):
-            top = max(hi, -lo)  # the largest |stack| at the surface
-            if float(np.abs(vals).max()) <= 1e-6 * top:
-                raise UserError(
-                    f"{capture.name}: channels pol<k>: no polarization signal: the analyzer images do not change "
-                    "with the angle (specular = Imax - Imin = 0 everywhere)"
-                )
-    else:
-        raise UserError(f"{capture.name}: no image: expected pol<k>.R/G/B channels or specular.R/G/B")
-    _check_finite(capture.name, channel, spec, surface)
-    if capture.specular is not None:
+        spec = np.asarray(capture.specular, dtype=float)
+        _check_finite(capture.name, "specular", spec, surface)
         _check_signal(capture.name, "specular", spec, surface)
+        return spec
+    if capture.stack is None:
+        raise UserError(f"{capture.name}: no image: expected pol<k>.R/G/B channels or specular.R/G/B")
+    stack = np.asarray(capture.stack)
+    # one pass over the stack for every check: its extremes over the angles, per pixel and channel
+    high, low = (stack.max(axis=0), stack.min(axis=0)) if stack.size else (None, None)
+    if high is not None:
+        _check_finite(capture.name, "pol<k>", high + low, surface)
+    hi, lo = _extremes(high, low, surface) if high is not None and surface.any() else (None, None)
+    if hi is not None and (hi <= 0 or -lo > hi):
+        k = int(np.argmin(stack[:, surface].min(axis=(1, 2))))  # the image to name (only when refusing)
+        _check_extremes(capture.name, f"pol{k}", hi, lo)
+    spec = separate_capture(capture, method=separation)[0]
+    _check_finite(capture.name, "pol<k>", spec, surface)
+    if hi is not None:
+        top = max(hi, -lo)  # the largest |stack| at the surface
+        if float(np.max(np.abs(spec), where=surface[..., None], initial=0.0)) <= 1e-6 * top:
+            raise UserError(
+                f"{capture.name}: channels pol<k>: no polarization signal: the analyzer images do not change "
+                "with the angle (specular = Imax - Imin = 0 everywhere)"
+            )
     return spec
+
+
+def _extremes(high: np.ndarray, low: np.ndarray, surface: np.ndarray) -> tuple[float, float]:
+    """Largest of ``high`` and smallest of ``low`` (``[H, W, 3]``) over the ``surface`` pixels (at least one).
+
+    A reduction with ``where=`` rather than of ``high[surface]``: the same
+    numbers without gathering a copy (640×480: ~1 ms against ~12 ms).
+    """
+    where = surface[..., None]
+    return float(np.max(high, where=where, initial=-np.inf)), float(np.min(low, where=where, initial=np.inf))
 
 
 def _check_finite(name: str, channel: str, img: np.ndarray, surface: np.ndarray) -> None:
@@ -470,16 +483,29 @@ def _spikes(lum: np.ndarray, surface: np.ndarray) -> np.ndarray:
     quarter for any w > 0.6 px (narrower, a lobe is one pixel and cannot be
     told from a hot pixel). The median rule alone caught the true peak of a
     lobe 1–2 px wide (σ = 0.005 on a 160-px board: neighbours 0.48, 0.44,
-    0.31 of the peak, median 0.20). Off-surface pixels count as 0.
-    """
-    from scipy.ndimage import maximum_filter, median_filter
+    0.31 of the peak, median 0.20). Off-surface pixels count as 0; the
+    image's edge is extended by its nearest pixels.
 
+    Only strict local maxima (above all 8 neighbours) can pass both tests
+    (were a neighbour as bright, the median would not exceed it and the
+    second test would fail), so the median is taken at those alone: the
+    same pixels as a median filter over the image, in ~1/10 of its time.
+    """
     img = np.where(surface, lum, 0.0)
-    med = np.maximum(median_filter(img, size=3, mode="nearest"), 0.0)
-    ring = np.ones((3, 3), bool)
-    ring[1, 1] = False
-    top = maximum_filter(img, footprint=ring, mode="nearest")
-    return surface & (lum > 2.0 * med) & (top - med < 0.25 * (lum - med))
+    H, W = img.shape
+    pad = np.pad(img, 1, mode="edge")
+    windows = [pad[di : di + H, dj : dj + W] for di in range(3) for dj in range(3)]
+    top = np.maximum(windows[0], windows[1])
+    for w in windows[2:4] + windows[5:]:  # the 8 neighbours, not the centre
+        np.maximum(top, w, out=top)
+    rows, cols = np.nonzero(surface & (lum > top))
+    around = np.stack([w[rows, cols] for w in windows], axis=-1)
+    med = np.maximum(np.partition(around, 4, axis=-1)[:, 4], 0.0)
+    peak, rise = lum[rows, cols], top[rows, cols] - med
+    spike = (peak > 2.0 * med) & (rise < 0.25 * (peak - med))
+    out = np.zeros(lum.shape, bool)
+    out[rows[spike], cols[spike]] = True
+    return out
 
 
 #: Pixels within this fraction of the brightest count as sharing the maximum
