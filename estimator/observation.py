@@ -199,16 +199,18 @@ def pixel_ray_error(capture: Capture) -> tuple[np.ndarray, np.ndarray]:
     C = np.asarray(capture.camera.position, dtype=float)
     P = np.asarray(capture.P, dtype=float)
     finite = every_channel(np.isfinite(P))
-    d = np.where(finite[..., None], P - C, np.nan)
     error = np.full((H, W), np.nan)
     behind = np.zeros((H, W), bool)
     cam = capture.camera
-    if cam.to_world is not None and cam.fov_x_deg is not None:
-        jj, ii = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
-        col, row, z = project(d, cam.to_world, W, H, cam.fov_x_deg)
-        behind = finite & ~(z > 0)
-        error = np.where(finite & ~behind, np.hypot(col - jj, row - ii), np.nan)
+    if cam.to_world is not None and cam.fov_x_deg is not None:  # projected at the finite pixels alone
+        rows, cols = np.nonzero(finite)
+        col, row, z = project(P[rows, cols] - C, cam.to_world, W, H, cam.fov_x_deg)
+        front = z > 0
+        behind[rows[~front], cols[~front]] = True
+        rows, cols = rows[front], cols[front]
+        error[rows, cols] = np.hypot(col[front] - (cols + 0.5), row[front] - (rows + 0.5))
         return error, behind
+    d = np.where(finite[..., None], P - C, np.nan)
     fitted = _fitted_rays(capture)
     if fitted is None:
         return error, behind
@@ -394,21 +396,21 @@ def surface_geometry(capture: Capture) -> tuple[np.ndarray, np.ndarray, np.ndarr
     """
     _check_shapes(capture)
     cam = np.asarray(capture.camera.position, dtype=float)
-    P = np.asarray(capture.P, dtype=float)
+    P = np.array(capture.P, dtype=float)  # a copy: the observation's own
     measured = every_channel(np.isfinite(P))
     holes = enclosed_holes(P)
     rays = pixel_rays(capture) if holes.any() else None
-    if rays is None:
-        P_fill = N_fill = np.full(P.shape, np.nan)
-    else:
+    filled = np.zeros(holes.shape, bool)
+    if rays is not None:
         P_fill, N_fill = fill_range_holes(P, holes, rays, cam)
-    filled = every_channel(np.isfinite(P_fill))
-    P = np.where(filled[..., None], P_fill, P)
+        filled = every_channel(np.isfinite(P_fill))
+        P[filled] = P_fill[filled]
     if capture.N is not None:
         N = normalize(np.asarray(capture.N, dtype=float))
     else:
         N = normals_from_positions(P, cam)
-    N = np.where(filled[..., None], N_fill, N)
+    if filled.any():
+        N[filled] = N_fill[filled]
     finite = (measured | filled) & every_channel(np.isfinite(N))
     V = normalize(cam - np.where(finite[..., None], P, 0.0))
     cos_r = np.where(finite, channel_sum(np.where(finite[..., None], N, 0.0) * V), 0.0)
