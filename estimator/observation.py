@@ -556,9 +556,10 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = THR
     located = surface | filled
     spec = np.where(located[..., None], spec, 0.0)
     lum = channel_sum(spec) / 3  # spec.mean(axis=-1), bit for bit
-    if surface.any() and np.ptp(lum[surface]) <= 1e-6 * np.abs(lum[surface]).max() and lum[surface].max() > 0:
+    at_surface = lum[surface]
+    if at_surface.size and np.ptp(at_surface) <= 1e-6 * np.abs(at_surface).max() and at_surface.max() > 0:
         raise UserError(
-            f"{capture.name}: specular: constant over the surface ({lum[surface].max():.4g}): no highlight, no signal"
+            f"{capture.name}: specular: constant over the surface ({at_surface.max():.4g}): no highlight, no signal"
         )
     usable = located & ~_spikes(lum, located)
     peak = _peak_pixel(lum, usable)
