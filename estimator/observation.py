@@ -199,18 +199,16 @@ def pixel_ray_error(capture: Capture) -> tuple[np.ndarray, np.ndarray]:
     C = np.asarray(capture.camera.position, dtype=float)
     P = np.asarray(capture.P, dtype=float)
     finite = every_channel(np.isfinite(P))
+    d = np.where(finite[..., None], P - C, np.nan)
     error = np.full((H, W), np.nan)
     behind = np.zeros((H, W), bool)
     cam = capture.camera
-    if cam.to_world is not None and cam.fov_x_deg is not None:  # projected at the finite pixels alone
-        rows, cols = np.nonzero(finite)
-        col, row, z = project(P[rows, cols] - C, cam.to_world, W, H, cam.fov_x_deg)
-        front = z > 0
-        behind[rows[~front], cols[~front]] = True
-        rows, cols = rows[front], cols[front]
-        error[rows, cols] = np.hypot(col[front] - (cols + 0.5), row[front] - (rows + 0.5))
+    if cam.to_world is not None and cam.fov_x_deg is not None:
+        jj, ii = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+        col, row, z = project(d, cam.to_world, W, H, cam.fov_x_deg)
+        behind = finite & ~(z > 0)
+        error = np.where(finite & ~behind, np.hypot(col - jj, row - ii), np.nan)
         return error, behind
-    d = np.where(finite[..., None], P - C, np.nan)
     fitted = _fitted_rays(capture)
     if fitted is None:
         return error, behind
