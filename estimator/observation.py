@@ -458,7 +458,7 @@ def _extremes(high: np.ndarray, low: np.ndarray, surface: np.ndarray) -> tuple[f
     """Largest of ``high`` and smallest of ``low`` (``[H, W, 3]``) over the ``surface`` pixels (at least one).
 
     A reduction with ``where=`` rather than of ``high[surface]``: the same
-    numbers without gathering a copy (640×480: ~1 ms against ~12 ms).
+    numbers without gathering a copy (640×480: about half the time).
     """
     where = surface[..., None]
     return float(np.max(high, where=where, initial=-np.inf)), float(np.min(low, where=where, initial=np.inf))
@@ -489,7 +489,8 @@ def _spikes(lum: np.ndarray, surface: np.ndarray) -> np.ndarray:
     Only strict local maxima (above all 8 neighbours) can pass both tests
     (were a neighbour as bright, the median would not exceed it and the
     second test would fail), so the median is taken at those alone: the
-    same pixels as a median filter over the image, in ~1/10 of its time.
+    same pixels as a median filter over the image (640×480 board: ~3 ms
+    against 15–30 ms).
     """
     img = np.where(surface, lum, 0.0)
     H, W = img.shape
