@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..files.jsonable import jsonable
+from ..physics.reflectance import every_channel
 
 #: The version the writer writes.
 FORMAT = "nearlight-capture/2"
@@ -221,10 +222,7 @@ class Capture:
     @property
     def surface_mask(self) -> np.ndarray:
         """``[H, W]`` bool: pixels that see a surface (finite ``P``)."""
-        finite = np.isfinite(self.P)
-        if finite.shape[-1:] != (3,):
-            return np.all(finite, axis=-1)
-        return finite[..., 0] & finite[..., 1] & finite[..., 2]  # np.all over so short an axis costs ~8x
+        return every_channel(np.isfinite(self.P))
 
     @property
     def name(self) -> str:
@@ -346,7 +344,7 @@ def read_capture(path: str | os.PathLike) -> Capture:
     if stack is None and specular is None:
         raise UserError(f"{exr_path}: no image: expected pol<k>.R/G/B channels or specular.R/G/B")
 
-    mask = np.all(np.isfinite(P), axis=-1)
+    mask = every_channel(np.isfinite(P))
     if not mask.any():
         raise UserError(f"{exr_path}: channel P.X: no finite position (no surface in the range image)")
     for name, img in (("N", N), ("specular", specular), ("diffuse", diffuse)):

@@ -9,7 +9,7 @@ import numpy as np
 from ..errors import UserError
 from .noise import CameraNoise, camera_noise, censored_pixels
 from .observation import Observation
-from ..physics.reflectance import channel_sum
+from ..physics.reflectance import any_channel, channel_sum
 
 
 def fit_pixels(obs: Observation, *, max_pixels: int, saturation: float | None) -> np.ndarray:
@@ -21,7 +21,7 @@ def fit_pixels(obs: Observation, *, max_pixels: int, saturation: float | None) -
     """
     use = obs.surface.copy()
     if saturation is not None:
-        use &= ~np.any(obs.specular >= saturation, axis=-1)
+        use &= ~any_channel(obs.specular >= saturation)
     n = int(use.sum())
     if n > max_pixels:
         lum = np.where(use, channel_sum(obs.specular) / 3, -np.inf).ravel()  # the mean, bit for bit

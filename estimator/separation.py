@@ -20,6 +20,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..physics.polarization import linear_stokes, separate_extrema, separate_stokes
+from ..physics.reflectance import channel_sum
 
 
 def _maxmin(stack: np.ndarray, angles_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -36,7 +37,9 @@ def _maxmin(stack: np.ndarray, angles_deg: np.ndarray) -> tuple[np.ndarray, np.n
 
 def _coefficients(stack: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:
     """``[3, H, W, 3]``: per-pixel least-squares ``a, b, c`` of ``a + b cos 2θ + c sin 2θ`` (= ½ S0, S1, S2)."""
-    return 0.5 * linear_stokes(stack, angles_deg)
+    coef = linear_stokes(stack, angles_deg)
+    coef *= 0.5
+    return coef
 
 
 def _fit(stack: np.ndarray, angles_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -61,15 +64,21 @@ def _projected(stack: np.ndarray, angles_deg: np.ndarray, *, size: int = 5) -> t
     from scipy.ndimage import uniform_filter
 
     a, b, c = _coefficients(stack, angles_deg)
-    bs, cs = b[..., 0] + b[..., 1] + b[..., 2], c[..., 0] + c[..., 1] + c[..., 2]  # sum(axis=-1), bit for bit
+    bs, cs = channel_sum(b), channel_sum(c)
     nb = uniform_filter(bs, size, mode="constant") * size**2 - bs
     nc = uniform_filter(cs, size, mode="constant") * size**2 - cs
     norm = np.hypot(nb, nc)
     safe = norm > 0
     ub = np.where(safe, nb / np.where(safe, norm, 1.0), 1.0)[..., None]
     uc = np.where(safe, nc / np.where(safe, norm, 1.0), 0.0)[..., None]
-    half = b * ub + c * uc
-    return 2.0 * half, 2.0 * (a - half)
+    # in place, the same numbers: b ← b·ub + c·uc (half the amplitude), a ← 2 (a − half), b ← 2 half
+    b *= ub
+    c *= uc
+    b += c
+    a -= b
+    a *= 2.0
+    b *= 2.0
+    return b, a
 
 
 #: Separation methods by name.

@@ -163,13 +163,39 @@ def segment_highlights(specular: np.ndarray, located: np.ndarray, *, smooth_px: 
     Highlights
         At least one highlight when any located pixel is positive.
     """
+    s, top, peaks = _highlight_peaks(specular, located, smooth_px=smooth_px, dip=dip, dip_abs=dip_abs, floor=floor)
+    if not top > 0:
+        return Highlights([], np.zeros(0), np.zeros(s.shape, int))
+    markers = np.zeros(s.shape, np.int16)
+    for i, p in enumerate(peaks):
+        markers[p] = i + 1
+    bright = located & (s >= floor * top)
+    markers[~bright] = -1
+    depth = np.round(65535.0 * (1.0 - np.clip(s / top, 0.0, 1.0))).astype(np.uint16)
+    labels = np.where(bright, ndimage.watershed_ift(depth, markers), 0)
+    return Highlights(peaks, np.array([s[p] for p in peaks]), labels)
+
+
+def _highlight_peaks(specular: np.ndarray, located: np.ndarray, *, smooth_px: float, dip: float, dip_abs: float,
+                     floor: float) -> tuple[np.ndarray, float, list[tuple[int, int]]]:
+    """:func:`segment_highlights`' smoothed image and peaks, without assigning the pixels to them.
+
+    Returns
+    -------
+    s : ndarray, shape (H, W)
+        Mean specular over the channels, smoothed, 0 off ``located``.
+    top : float
+        Its largest value.
+    peaks : list of tuple of int
+        (row, column) of each highlight's peak, brightest first; empty unless ``top > 0``.
+    """
     lum = np.where(located, np.nan_to_num(channel_sum(specular) / 3), 0.0)  # the mean, bit for bit
     weight = ndimage.gaussian_filter(located.astype(float), smooth_px)
     with np.errstate(invalid="ignore", divide="ignore"):
         s = np.where(located & (weight > 0), ndimage.gaussian_filter(lum, smooth_px) / weight, 0.0)
     top = float(s.max())
     if not top > 0:
-        return Highlights([], np.zeros(0), np.zeros(s.shape, int))
+        return s, top, []
     is_max = (s == ndimage.maximum_filter(s, size=3)) & located & (s >= floor * top)
     rows, cols = np.nonzero(is_max)
     order = np.lexsort((cols, rows, -s[rows, cols]))  # brightest first, ties by position
@@ -184,14 +210,7 @@ def segment_highlights(specular: np.ndarray, located: np.ndarray, *, smooth_px: 
         here = comp[r, c]
         if not any(comp[p] == here for p in candidates[:rank]):
             peaks.append((r, c))
-    markers = np.zeros(s.shape, np.int16)
-    for i, p in enumerate(peaks):
-        markers[p] = i + 1
-    bright = located & (s >= floor * top)
-    markers[~bright] = -1
-    depth = np.round(65535.0 * (1.0 - np.clip(s / top, 0.0, 1.0))).astype(np.uint16)
-    labels = np.where(bright, ndimage.watershed_ift(depth, markers), 0)
-    return Highlights(peaks, np.array([s[p] for p in peaks]), labels)
+    return s, top, peaks
 
 
 def highlights_of(obs: Observation) -> Highlights:
@@ -200,8 +219,12 @@ def highlights_of(obs: Observation) -> Highlights:
 
 
 def several_highlights_warning(obs: Observation) -> str | None:
-    """The warning of a one-lamp method on an observation with several separate highlights, else None."""
-    n = len(highlights_of(obs).peaks)
+    """The warning of a one-lamp method on an observation with several separate highlights, else None.
+
+    Counts :func:`highlights_of`'s peaks without its watershed (which pixels belong to each).
+    """
+    n = len(_highlight_peaks(obs.specular, obs.located, smooth_px=SMOOTH_PX, dip=HIGHLIGHT_DIP,
+                             dip_abs=HIGHLIGHT_DIP_ABS, floor=HIGHLIGHT_FLOOR)[2])
     if n < 2:
         return None
     return f"{n} separate highlights: this method fits one lamp; try lamps=auto"
