@@ -17,9 +17,17 @@ Measured after the reduction-free geometry and channel sums (bit for bit
 the same estimates; back to back with the code before, on the 2 shared
 cores under a load of 2–3): ``full`` with a named lobe, board 0.753 →
 0.484 s (observe 0.287 → 0.173, full stage 0.398 → 0.256), sphere 0.628 →
-0.547 s; 5.4× faster than :data:`BEFORE` on the board, the goal (0.3 s)
-not met: ``observe`` ~0.18 s, the seven short multi-start fits ~0.16 s,
-the final robust fit ~0.08 s, the several-highlights warning ~0.04 s.
+0.547 s. Then (issue 14, next stop) ``observe`` without whole-image
+filters and copies (bit for bit: observe 0.172 → 0.131 s, the
+several-highlights warning 0.027 → 0.016 s) and the short fits by variable
+projection (estimates within 1e-9 m; every start now reaches the optimum,
+in about half the evaluations): CPU seconds per estimate, ten estimates
+per process paired against the code before (A B A B, three pairs, while
+two report workers ran), board and sphere 0.70 → 0.52 s, whole-process
+CPU ratio 0.76 (0.73–0.81). On an idle core that puts a named lobe near
+0.36 s: the goal (0.3 s) still not met; what is left is ``observe``
+(~0.13 s, most of it the separation's float64 Stokes fit), the seven
+short fits (~0.10 s) and the final robust fit (~0.08 s).
 
 Usage::
 
