@@ -531,18 +531,48 @@ def short_fit(model: Any, x0: np.ndarray, scale: float) -> dict:
     def jacobian(u: np.ndarray) -> np.ndarray:
         x = solved(u)
         J = model.jacobian(x)
-        Jc, Jf = J[:, colour & (x > 0)], J[:, free]
-        if Jc.shape[1] == 0:
-            return Jf
-        try:  # the colours' Gram matrix is small (≤ 3K × 3K) and, for one lamp, diagonal
-            return Jf - Jc @ np.linalg.solve(Jc.T @ Jc, Jc.T @ Jf)
-        except np.linalg.LinAlgError:  # two lamps alike: their colours are not separately determined
-            return Jf - Jc @ np.linalg.lstsq(Jc, Jf, rcond=None)[0]
+        return project_out(J[:, free], J[:, colour & (x > 0)])
 
     result = robust_fit(residuals, start[free], typical=typical_scale(x0, scale)[free], lower=lower[free],
                         upper=upper[free], loss="linear", f_scale=1.0, jac=jacobian,
                         max_nfev=100 if len(x0) > 7 else 30)
     return {**result, "x": solved(result["x"]).copy()}
+
+
+def project_out(Jf: np.ndarray, Jc: np.ndarray) -> np.ndarray:
+    """``Jf`` with its projection on the columns of ``Jc`` removed (Kaufman's variable-projection Jacobian).
+
+    The projection does not depend on the columns' lengths, so each column
+    of ``Jc`` is first divided by its largest magnitude: a lamp that lights
+    almost nothing has colour columns of ~1e-155, whose Gram entries
+    underflow to denormals and made the normal equations return inf
+    (measured in the sensitivity study, a two-lamp fit). All-zero columns
+    are left out; where the scaled Gram matrix is singular (two lamps
+    alike), a least-squares solve is used instead.
+
+    Parameters
+    ----------
+    Jf : ndarray, shape (m, p)
+        Jacobian columns of the parameters the solver moves.
+    Jc : ndarray, shape (m, q)
+        Jacobian columns of the solved (linear) parameters, q ≤ 3K.
+
+    Returns
+    -------
+    ndarray, shape (m, p)
+    """
+    size = np.max(np.abs(Jc), axis=0, initial=0.0)
+    keep = size > 0
+    if not keep.any():
+        return Jf
+    Q = Jc[:, keep] / size[keep]
+    try:  # the Gram matrix is small (≤ 3K × 3K) and, for one lamp, diagonal
+        coef = np.linalg.solve(Q.T @ Q, Q.T @ Jf)
+    except np.linalg.LinAlgError:
+        coef = None
+    if coef is None or not np.all(np.isfinite(coef)):
+        coef = np.linalg.lstsq(Q, Jf, rcond=None)[0]
+    return Jf - Q @ coef
 
 
 def final_fit(model: Any, x0: np.ndarray, scale: float, *, loss: str, f_scale: float | None,

@@ -192,3 +192,24 @@ def test_the_count_does_not_trust_the_model_below_the_fits_floor():
     assert chosen_count(lamp_count_evidence({1: 1.0, 2: 0.5}, faintest, closest, n)) == 2
     assert chosen_count(lamp_count_evidence({1: 1.0, 2: 0.5}, faintest, closest, n, s2_floor=1.0)) == 1
     assert chosen_count(lamp_count_evidence({1: 1e4, 2: 0.5}, faintest, closest, n, s2_floor=1.0)) == 2
+
+
+def test_project_out_handles_a_lamp_that_lights_almost_nothing():
+    # Measured in the sensitivity study (two-lamp fit, board, 0.35 m, low noise): a lamp whose colour
+    # columns were ~1e-155, their Gram entries denormal (2e-309); the normal equations returned inf
+    # and the solver's SVD refused the Jacobian. The projection does not depend on a column's length:
+    # it must equal the one on the same columns at unit scale, to float rounding.
+    from nearlight.estimator.several import project_out
+
+    rng = np.random.default_rng(0)
+    Jf, lit, shape = rng.normal(size=(300, 4)), rng.normal(size=(300, 3)), rng.normal(size=(300, 3))
+
+    def projected(B):
+        return Jf - B @ np.linalg.lstsq(B, Jf, rcond=None)[0]
+
+    out = project_out(Jf, np.concatenate([lit, 1e-155 * shape], axis=1))
+    assert np.all(np.isfinite(out))
+    np.testing.assert_allclose(out, projected(np.concatenate([lit, shape], axis=1)), atol=1e-10)
+    # all-zero columns: nothing to project on; two identical lamps: the least-squares projection
+    np.testing.assert_array_equal(project_out(Jf, np.zeros((300, 3))), Jf)
+    np.testing.assert_allclose(project_out(Jf, np.concatenate([lit, lit], axis=1)), projected(lit), atol=1e-10)
