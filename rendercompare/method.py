@@ -66,7 +66,7 @@ import numpy as np
 
 from ..capture import Capture
 from ..errors import UserError
-from ..estimator.full import _starts
+from ..estimator.full import peak_ray_starts
 from ..estimator.options import Choice, Count, CountOrZero, Positive, forwards
 from ..estimator.paper import stage_one
 from ..estimator.pixels import fit_pixels
@@ -335,7 +335,7 @@ def render_compare_estimate(
         Extra starts on ``paper-init``'s peak ray, at ``n_starts`` distances
         log-spaced from 0.1 to 3 × the camera–highlight distance, each with
         the σ of the regression at that distance (``full``'s starts,
-        :func:`~nearlight.estimator.full._starts`). The loss is evaluated at
+        :func:`~nearlight.estimator.full.peak_ray_starts`). The loss is evaluated at
         every start and at ``paper-init``'s (one forward and backward pass
         each, :func:`rank_starts`); 0: ``paper-init``'s start alone.
     n_fits : int
@@ -377,7 +377,7 @@ def render_compare_estimate(
     setup = time.perf_counter() - clock
     clock = time.perf_counter()
     starts = [(x[:3], float(np.clip(lobe.alpha(x[6]), *ALPHA_BOUNDS)))
-              for x in _starts(init, obs, n_starts=int(n_starts))]
+              for x in peak_ray_starts(init, obs, n_starts=int(n_starts))]
     order, losses = rank_starts(model, starts)
     fits = {i: fit(model, *starts[i], scale=obs.scale, max_iter=int(max_iter)) for i in order[:int(n_fits)]}
     best = min(fits, key=lambda i: fits[i]["loss"])  # a fit whose loss is not finite reports inf
