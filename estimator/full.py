@@ -294,8 +294,8 @@ def full_estimate(
     Speed (issue 14; ``benchmarks/bench_estimator.py``): the start is the
     first stage on a lattice of ~:data:`START_PIXELS` specular pixels rather
     than on all of them (~53 000 on the 640×480 board), the multi-start's
-    short fits run on ~:data:`TRIAL_PIXELS` of the fitted pixels by
-    variable projection (the colour solved linearly at every step, the
+    short fits run on ~:data:`TRIAL_PIXELS` of the fitted pixels, until two
+    agree, by variable projection (the colour solved linearly at every step, the
     solver moving lamp and roughness only:
     :func:`~nearlight.estimator.several.short_fit`), and the model
     evaluates its geometry once per lamp and roughness for the residuals,
@@ -372,7 +372,10 @@ def full_estimate(
     n_starts : int
         Extra starting distances along the peak ray (see :func:`peak_ray_starts`);
         the start with the lowest least-squares cost after a short fit (on
-        at most ~:data:`TRIAL_PIXELS` of the fitted pixels) wins.
+        at most ~:data:`TRIAL_PIXELS` of the fitted pixels) wins, the starts
+        tried until two reach the same lowest cost
+        (:func:`~nearlight.estimator.several.best_short_fit`; how many ran:
+        ``stages["full"]["n_short_fits"]``).
     lamps : int or "auto"
         Number of point lamps fitted: 1 (the default: the fit above), K ≤
         :data:`~nearlight.estimator.several.MAX_LAMPS`, or ``"auto"`` (the count
