@@ -27,7 +27,14 @@ two report workers ran), board and sphere 0.70 → 0.52 s, whole-process
 CPU ratio 0.76 (0.73–0.81). On an idle core that puts a named lobe near
 0.36 s: the goal (0.3 s) still not met; what is left is ``observe``
 (~0.13 s, most of it the separation's float64 Stokes fit), the seven
-short fits (~0.10 s) and the final robust fit (~0.08 s).
+short fits (~0.10 s) and the final robust fit (~0.08 s). Next stop, the
+multi-start stopped once two starts reach the same minimum
+(``several.best_short_fit``; estimates within 4.4e-8 m over 120
+sensitivity captures, 2 short fits of 7 on 119 of them): on one idle
+core, best of 2, the run before and after it back to back, a named
+lobe 0.472 → 0.339 s on the board (full stage 0.248 → 0.151) and 0.464 →
+0.352 s on the sphere; automatic choice 0.545 → 0.465 and 0.540 → 0.387 s.
+The goal (0.3 s) is still not met: ``observe`` is 0.14 s of it.
 
 Usage::
 
