@@ -2,7 +2,7 @@
 
 Specified in ``docs/capture-format.md``; :mod:`nearlight.capture.format` is its
 one reference implementation (reading, writing, the :class:`Capture` and
-:class:`Camera`, :class:`Intrinsics`, :class:`Rig` and :class:`Sensor` records).
+:class:`Camera`, :class:`Intrinsics`, :class:`LampFilter`, :class:`Rig` and :class:`Sensor` records).
 """
 
 from .format import (
@@ -14,6 +14,7 @@ from .format import (
     Camera,
     Capture,
     Intrinsics,
+    LampFilter,
     Rig,
     Sensor,
     capture_json,
@@ -30,6 +31,7 @@ __all__ = [
     "Camera",
     "Capture",
     "Intrinsics",
+    "LampFilter",
     "Rig",
     "Sensor",
     "capture_json",

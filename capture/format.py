@@ -134,6 +134,22 @@ class Camera:
 
 
 @dataclasses.dataclass(frozen=True)
+class LampFilter:
+    """The lamps' linear polarizer filters as a rig knows them (``rig.lamp_filter``, v2): one for all lamps.
+
+    Attributes
+    ----------
+    axis : tuple of float, shape (3,)
+        The filter's axis, world (any length; projected into the filter's plane).
+    aim : tuple of float, shape (3,)
+        The point every filter faces (world, m): its normal runs from the lamp to it.
+    """
+
+    axis: tuple[float, float, float]
+    aim: tuple[float, float, float]
+
+
+@dataclasses.dataclass(frozen=True)
 class Rig:
     """What a rig knows about itself by calibration (``capture.json``'s ``rig``, v2); estimators may use it.
 
@@ -148,6 +164,10 @@ class Rig:
         principal intensity transmittances, ``k1 = 1``); None: ideal.
     lamp_polarizer_extinction_ratio : float or None
         The same for the lamp's polarizer; None: ideal.
+    lamp_filter : LampFilter or None
+        Every lamp's filter, when the rig knows it; None: unknown. With
+        several lamps it lets an estimator predict each lamp's polarization
+        angle (``rig.lamp_filter``).
     other : dict
         Every other key of ``rig`` (kept on a round trip).
     """
@@ -155,6 +175,7 @@ class Rig:
     lamps: int = 1
     analyzer_extinction_ratio: float | None = None
     lamp_polarizer_extinction_ratio: float | None = None
+    lamp_filter: LampFilter | None = None
     other: dict[str, Any] = dataclasses.field(default_factory=dict)
 
 
@@ -494,8 +515,26 @@ def _rig(x: Any, where: Path) -> Rig:
         lamp_polarizer_extinction_ratio=_ratio(
             other.pop("lamp_polarizer_extinction_ratio", None), where, "rig.lamp_polarizer_extinction_ratio"
         ),
+        lamp_filter=_lamp_filter(other.pop("lamp_filter", None), where),
         other=other,
     )
+
+
+def _lamp_filter(x: Any, where: Path) -> LampFilter | None:
+    """``rig.lamp_filter`` of a v2 ``capture.json``: ``{axis, aim}``, two world 3-vectors (absent or null: None)."""
+    if x is None:
+        return None
+    if not (isinstance(x, dict) and set(x) == {"axis", "aim"}):
+        raise UserError(f"{where}: rig.lamp_filter: expected an object {{axis, aim}}, got {x!r}")
+    out = {}
+    for key in ("axis", "aim"):
+        v = x[key]
+        if not (isinstance(v, list) and len(v) == 3 and all(_is_number(c) for c in v)):
+            raise UserError(f"{where}: rig.lamp_filter.{key}: expected 3 numbers (world), got {v!r}")
+        out[key] = tuple(float(c) for c in v)
+    if not np.linalg.norm(out["axis"]) > 0:
+        raise UserError(f"{where}: rig.lamp_filter.axis: expected a nonzero vector, got {x['axis']!r}")
+    return LampFilter(**out)
 
 
 def _intrinsics(x: Any, where: Path) -> Intrinsics | None:
@@ -729,6 +768,8 @@ def capture_json(capture: Capture) -> dict[str, Any]:
     for key in ("analyzer_extinction_ratio", "lamp_polarizer_extinction_ratio"):
         if getattr(rig, key) is not None:
             doc["rig"][key] = float(getattr(rig, key))
+    if rig.lamp_filter is not None:
+        doc["rig"]["lamp_filter"] = {"axis": _list(rig.lamp_filter.axis), "aim": _list(rig.lamp_filter.aim)}
     for key, value in rig.other.items():
         doc["rig"].setdefault(key, jsonable(value))
     if capture.sensor is not None:

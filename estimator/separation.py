@@ -23,6 +23,10 @@ from ..physics.polarization import linear_stokes, separate_extrema, separate_sto
 from ..physics.reflectance import channel_sum
 
 
+#: Side (pixels) of the neighbourhood whose phase the ``projected`` separation takes the amplitude along.
+PHASE_WINDOW = 5
+
+
 def _maxmin(stack: np.ndarray, angles_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The paper's Imax − Imin over the sampled angles.
 
@@ -51,7 +55,7 @@ def _fit(stack: np.ndarray, angles_deg: np.ndarray) -> tuple[np.ndarray, np.ndar
     return separate_stokes(*linear_stokes(stack, angles_deg))
 
 
-def _projected(stack: np.ndarray, angles_deg: np.ndarray, *, size: int = 5) -> tuple[np.ndarray, np.ndarray]:
+def _projected(stack: np.ndarray, angles_deg: np.ndarray, *, size: int = PHASE_WINDOW) -> tuple[np.ndarray, np.ndarray]:
     """Fit per pixel, then project ``(b, c)`` on the phase of its neighbourhood.
 
     The phase 2β comes from the sum of ``(b, c)`` over the ``size × size``
@@ -61,16 +65,9 @@ def _projected(stack: np.ndarray, angles_deg: np.ndarray, *, size: int = 5) -> t
     Exact on noise-free stacks where β is constant over the neighbourhood;
     a smooth β that turns by δ across it costs a factor ≈ cos 2δ.
     """
-    from scipy.ndimage import uniform_filter
-
     a, b, c = _coefficients(stack, angles_deg)
-    bs, cs = channel_sum(b), channel_sum(c)
-    nb = uniform_filter(bs, size, mode="constant") * size**2 - bs
-    nc = uniform_filter(cs, size, mode="constant") * size**2 - cs
-    norm = np.hypot(nb, nc)
-    safe = norm > 0
-    ub = np.where(safe, nb / np.where(safe, norm, 1.0), 1.0)[..., None]
-    uc = np.where(safe, nc / np.where(safe, norm, 1.0), 0.0)[..., None]
+    ub, uc = _neighbourhood_phase(b, c, size)
+    ub, uc = ub[..., None], uc[..., None]
     # in place, the same numbers: b ← b·ub + c·uc (half the amplitude), a ← 2 (a − half), b ← 2 half
     b *= ub
     c *= uc
@@ -79,6 +76,40 @@ def _projected(stack: np.ndarray, angles_deg: np.ndarray, *, size: int = 5) -> t
     a *= 2.0
     b *= 2.0
     return b, a
+
+
+def _neighbourhood_phase(b: np.ndarray, c: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(cos 2β̂, sin 2β̂)``, shape (H, W) each: the phase of ``(b, c)`` summed over the ``size × size``
+    neighbourhood and the three channels, the pixel itself left out (``(1, 0)`` where that sum is 0)."""
+    from scipy.ndimage import uniform_filter
+
+    bs, cs = channel_sum(b), channel_sum(c)
+    nb = uniform_filter(bs, size, mode="constant") * size**2 - bs
+    nc = uniform_filter(cs, size, mode="constant") * size**2 - cs
+    norm = np.hypot(nb, nc)
+    safe = norm > 0
+    return np.where(safe, nb / np.where(safe, norm, 1.0), 1.0), np.where(safe, nc / np.where(safe, norm, 1.0), 0.0)
+
+
+def specular_phase(capture: Any, *, method: str = "fit") -> np.ndarray | None:
+    """The polarization angle β̂ (H, W) that ``method``'s specular amplitude is measured along, or None.
+
+    ``projected`` takes the amplitude along its neighbourhood's phase
+    (:func:`_projected`), ``fit`` along the pixel's own (the phase of the
+    channels' summed ``(b, c)``); the specular of several lamps polarized at
+    angles ``β_k`` is then ``Σ_k Is_k cos 2(β_k − β̂)`` (exact for
+    ``projected``, noise-free for ``fit``), not ``Σ_k Is_k``. ``maxmin`` and
+    a capture without a stack measure no phase: None. Radians, in the
+    analyzer angles' frame (counter-clockwise from the image's rightward
+    horizontal); the rig's extinction ratios scale ``(b, c)`` and leave it.
+    """
+    if capture.stack is None or method not in ("fit", "projected"):
+        return None
+    _, b, c = _coefficients(np.asarray(capture.stack, dtype=float), np.asarray(capture.analyzer_angles_deg, float))
+    if method == "projected":
+        ub, uc = _neighbourhood_phase(b, c, PHASE_WINDOW)
+        return 0.5 * np.arctan2(uc, ub)
+    return 0.5 * np.arctan2(channel_sum(c), channel_sum(b))
 
 
 #: Separation methods by name.

@@ -65,6 +65,7 @@ from scipy.optimize import nnls
 
 from ..capture import Capture
 from ..errors import UserError
+from ..physics.polarization import specular_aolp
 from ..physics.reflectance import LOBES, channel_sum, peak_shape, roughness_for_ts_sigma, ts_sigma
 from .fitting import log_regression, robust_fit
 from .lobes import FAMILIES
@@ -72,6 +73,7 @@ from .noise import specular_variance
 from .observation import Observation
 from .paper import RaySearch, fast_search, t_search_defaults
 from .pixels import weighted_fit_pixels
+from .separation import specular_phase
 from .result import Estimate
 
 #: Most lamps ``lamps="auto"`` tries (the issue's bound: K ≤ min(highlights + 1, 4)).
@@ -234,14 +236,60 @@ def several_highlights_warning(obs: Observation) -> str | None:
     return f"{n} separate highlights: this method fits one lamp; try lamps=auto"
 
 
+class LampPhases(NamedTuple):
+    """What weighs each lamp of a several-lamp model by its polarization angle (:class:`SeveralLampModel`).
+
+    Attributes
+    ----------
+    measured : ndarray, shape (n,)
+        β̂ per pixel, radians: the phase the separation measured the specular
+        along (:func:`~nearlight.estimator.separation.specular_phase`).
+    camera_up : ndarray, shape (3,)
+        The camera's up vector (``camera.to_world``'s second column).
+    axis, aim : ndarray, shape (3,)
+        Every lamp's filter (``rig.lamp_filter``).
+    """
+
+    measured: np.ndarray
+    camera_up: np.ndarray
+    axis: np.ndarray
+    aim: np.ndarray
+
+    def subset(self, rows: slice | np.ndarray) -> LampPhases:
+        return self._replace(measured=np.ascontiguousarray(self.measured[rows]))
+
+
+def lamp_phases(capture: Capture, obs: Observation, use: np.ndarray, separation: str) -> LampPhases | None:
+    """:class:`LampPhases` of the fitted pixels ``use``, or None where the capture cannot give them.
+
+    Needs the lamps' filter (``rig.lamp_filter``), the camera's orientation
+    (``camera.to_world``) and a separation that measures a phase (``fit``,
+    ``projected``) of an analyzer stack.
+    """
+    filt, to_world = capture.rig.lamp_filter, capture.camera.to_world
+    phase = None if filt is None or to_world is None else specular_phase(capture, method=separation)
+    if phase is None:
+        return None
+    return LampPhases(np.ascontiguousarray(phase[use]), np.asarray(to_world, float)[:3, 1],
+                      np.asarray(filt.axis, float), np.asarray(filt.aim, float))
+
+
 class SeveralLampModel:
     """Specular radiance of K point lamps over one surface, with its Jacobian.
 
     Parameters ``x = (l₁, c₁, …, l_K, c_K, a)``, shape ``(6K + 1,)``: each
     lamp's position (m) and colour (its intensity times Ks per channel), then
     the lobe family's roughness, shared. Residuals are
-    ``(Σₖ model_k − observed) / std``, flattened pixel-major ``[n · 3]``,
-    ``model_k`` :class:`~nearlight.estimator.full.PointLampModel`'s for lamp k.
+    ``(Σₖ w_k model_k − observed) / std``, flattened pixel-major ``[n · 3]``,
+    ``model_k`` :class:`~nearlight.estimator.full.PointLampModel`'s for lamp
+    k and ``w_k = 1``, or, with ``phases``, ``w_k = cos 2(β_k − β̂)``: the
+    separated specular of lamps polarized at different angles ``β_k``
+    (:func:`~nearlight.physics.polarization.specular_aolp`) is the sum of
+    their polarized parts measured along β̂, not the sum of their radiances.
+    Measured on the two-lamp study's 30°-apart capture (low noise), where the
+    two lamps' β differ by up to 22° over their highlights: the true lamps'
+    χ² 81 372 (plain sum) → 26 679 (weighted) for 26 826 values, and the
+    noise-free separation matched to 1.3e-5 of the peak, against 2.7 %.
 
     Parameters
     ----------
@@ -249,13 +297,16 @@ class SeveralLampModel:
         The pixels, observed specular, lobe family and weights.
     k : int
         Number of lamps.
+    phases : LampPhases, optional
+        The pixels' β̂ and the lamps' filter; None: ``w_k = 1``.
     """
 
-    def __init__(self, lamp: Any, k: int):
-        self.lamp, self.k = lamp, k
+    def __init__(self, lamp: Any, k: int, phases: LampPhases | None = None):
+        self.lamp, self.k, self.phases = lamp, k, phases
         # the same model with nothing observed: its residuals are one lamp's weighted radiance
         self._one = type(lamp)(lamp.P, lamp.N, lamp.camera, np.zeros_like(lamp.observed), lobe=lamp.lobe, std=lamp.std)
         self._observed = self._one._weigh(lamp.observed).ravel()
+        self._weights: dict[bytes, np.ndarray] = {}
 
     @property
     def n_params(self) -> int:
@@ -263,24 +314,64 @@ class SeveralLampModel:
 
     def subset(self, rows: slice | np.ndarray) -> SeveralLampModel:
         """The same model on some of its pixels."""
-        return SeveralLampModel(self.lamp.subset(rows), self.k)
+        return SeveralLampModel(self.lamp.subset(rows), self.k, None if self.phases is None else self.phases.subset(rows))
 
     def with_lobe(self, lobe: str) -> SeveralLampModel:
         """The same pixels and weights with another lobe family."""
-        return SeveralLampModel(self.lamp.with_lobe(lobe), self.k)
+        return SeveralLampModel(self.lamp.with_lobe(lobe), self.k, self.phases)
 
     def lamp_params(self, x: np.ndarray, i: int) -> np.ndarray:
         """Lamp ``i``'s single-lamp parameters ``(x, y, z, c_R, c_G, c_B, a)``, shape (7,)."""
         return np.concatenate([x[6 * i : 6 * i + 6], x[-1:]])
 
+    def _beta(self, position: np.ndarray) -> np.ndarray:
+        ph = self.phases
+        return specular_aolp(self.lamp.P, self.lamp.camera, ph.camera_up, position, ph.axis, ph.aim)
+
+    def weight(self, position: np.ndarray) -> np.ndarray:
+        """``w = cos 2(β − β̂)`` of a lamp at ``position``, shape (n,) (ones without ``phases``)."""
+        if self.phases is None:
+            return np.ones(len(self.lamp.P))
+        key = np.asarray(position, float).tobytes()
+        if key not in self._weights:
+            if len(self._weights) > 4 * self.k:  # the solver's last few points only
+                self._weights.clear()
+            self._weights[key] = np.cos(2.0 * (self._beta(position) - self.phases.measured))
+        return self._weights[key]
+
+    def _weight_gradient(self, position: np.ndarray) -> np.ndarray:
+        """``∂w/∂l``, shape (n, 3): central differences of β (steps 1e-6 of the lamp's distance)."""
+        beta = self._beta(position)
+        step = 1e-6 * float(np.linalg.norm(position - self.lamp.P[0]))
+        out = np.empty((len(beta), 3))
+        for j in range(3):
+            e = np.zeros(3)
+            e[j] = step
+            d = self._beta(position + e) - self._beta(position - e)
+            d = (d + np.pi / 2) % np.pi - np.pi / 2  # β is an axis: modulo π
+            out[:, j] = d / (2 * step)
+        return -2.0 * np.sin(2.0 * (beta - self.phases.measured))[:, None] * out
+
     def residuals(self, x: np.ndarray) -> np.ndarray:
-        return sum(self._one.residuals(self.lamp_params(x, i)) for i in range(self.k)) - self._observed
+        if self.phases is None:
+            return sum(self._one.residuals(self.lamp_params(x, i)) for i in range(self.k)) - self._observed
+        return sum((self._one.residuals(self.lamp_params(x, i)).reshape(-1, 3)
+                    * self.weight(x[6 * i : 6 * i + 3])[:, None]).ravel() for i in range(self.k)) - self._observed
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
-        """Analytic ``∂ residuals / ∂ x``, shape ``(n · 3, 6K + 1)``: each lamp's block, roughness columns summed."""
+        """Analytic ``∂ residuals / ∂ x``, shape ``(n · 3, 6K + 1)``: each lamp's block, roughness columns summed.
+
+        With ``phases``, lamp k's block is ``w_k J_k`` plus, in its position
+        columns, its weighted radiance times ``∂w_k/∂l_k``.
+        """
         J = np.zeros((len(self._observed), self.n_params))
         for i in range(self.k):
-            Ji = self._one.jacobian(self.lamp_params(x, i))
+            p = self.lamp_params(x, i)
+            Ji = self._one.jacobian(p)
+            if self.phases is not None:
+                Ji = Ji * np.repeat(self.weight(p[:3]), 3)[:, None]
+                radiance = self._one.residuals(p).reshape(-1, 3)
+                Ji[:, :3] += (radiance[:, :, None] * self._weight_gradient(p[:3])[:, None, :]).reshape(-1, 3)
             J[:, 6 * i : 6 * i + 6] = Ji[:, :6]
             J[:, -1] += Ji[:, 6]
         return J
@@ -289,6 +380,7 @@ class SeveralLampModel:
         """``x`` with the non-negative least-squares colours for its lamps and roughness (per channel, NNLS)."""
         ones = np.ones(3)
         D = np.stack([self._one.residuals(np.concatenate([x[6 * i : 6 * i + 3], ones, x[-1:]])).reshape(-1, 3)
+                      * (1.0 if self.phases is None else self.weight(x[6 * i : 6 * i + 3])[:, None])
                       for i in range(self.k)], axis=-1)  # (n, 3, K): weighted radiance per unit colour
         obs = self._observed.reshape(-1, 3)
         out = x.copy()
@@ -799,7 +891,10 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
     NNLS) in each lobe family of ``lobe`` on the short fits' pixel subset,
     and the family of least χ² there gets the final robust fit on every
     pixel (:func:`~nearlight.estimator.fitting.robust_fit`, ``full``'s loss
-    and weights).
+    and weights). With the lamps' filter in the capture (``rig.lamp_filter``)
+    and a separation that measures a phase, the K ≥ 2 fits after the
+    screening weigh each lamp by its polarization angle (:func:`lamp_phases`,
+    :class:`SeveralLampModel`; ``stages["full"]["lamp_phases"]``).
 
     Parameters
     ----------
@@ -830,6 +925,7 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
     std_img = None if camera is None else np.sqrt(specular_variance(capture, obs.specular, camera))
     std = None if std_img is None else std_img[use]
     base = PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use], std=std)
+    phases = lamp_phases(capture, obs, use, separation)
     k_max = min(len(found.peaks) + 1, MAX_LAMPS) if lamps == "auto" else int(lamps)
     families = FAMILIES if lobe == "auto" else tuple(v.strip() for v in lobe.split("+"))
     stride = max(1, len(base.P) // 2000)
@@ -848,7 +944,7 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
     def residual_start(x: np.ndarray, family: str) -> np.ndarray | None:
         """A start at the brightest highlight of what the lamps of ``x`` (in ``family``) leave unexplained."""
         unweighted = SeveralLampModel(PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use],
-                                                     lobe=family), (len(x) - 1) // 6)
+                                                     lobe=family), (len(x) - 1) // 6, phases)
         left = np.zeros_like(obs.specular)
         left[use] = -unweighted.residuals(x).reshape(-1, 3)
         return _region_start(dataclasses.replace(obs, specular=left), segment_highlights(left, use).labels == 1,
@@ -877,11 +973,14 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
         # and the K − 1 fit's brightest lamp split in two (highlights merged into one); the best few of all
         # go on to every family
         previous = _convert_roughness(fits[k - 1]["x"], fits[k - 1]["lobe"], "torrance_sparrow")
+        # screened without the lamps' polarization angles: weighted by them, most starts of the 20°-apart equal
+        # lamps (two-lamp study, one merged highlight) ran to lamps on the board with the broadest lobe; the
+        # plain sum's basin is the weighted one's (its minimum is off by millimetres), the weighted fits follow
         candidates = screened_starts(SeveralLampModel(base, k),
                                      candidates + ray_starts(obs, k) + split_starts(obs, previous), obs.scale)
         shorts = {}
         for fam in families:
-            m = SeveralLampModel(base.with_lobe(fam), k).subset(slice(None, None, stride))
+            m = SeveralLampModel(base.with_lobe(fam), k, phases).subset(slice(None, None, stride))
             for x0 in candidates:
                 xf = short_fit(m, _convert_roughness(x0, "torrance_sparrow", fam), obs.scale)["x"]
                 c = m.chi2(xf)
@@ -890,7 +989,7 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
         if "torrance_sparrow" in shorts:
             ts[k] = (shorts["torrance_sparrow"][0], "torrance_sparrow")
         fam = min(shorts, key=lambda f: shorts[f][1])
-        model = SeveralLampModel(base.with_lobe(fam), k)
+        model = SeveralLampModel(base.with_lobe(fam), k, phases)
         xs = shorts[fam][0]
         fit = final_fit(model, xs, obs.scale, loss=loss, f_scale=f_scale, floor=floor)
         fits[k] = {**fit, "lobe": fam, "chi2": model.chi2(fit["x"])}
@@ -928,7 +1027,7 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
         **{key: fit[key] for key in ("f_scale", "cost", "nfev", "status", "rms", "chi2")},
         "lobe": family, "bsdf": {"model": family, spec.colour_key: colour, spec.roughness_key: x[-1]},
         "lobes_fitted": list(families), "noise": None if camera is None else camera._asdict(),
-        "loss": loss, "n_pixels": int(use.sum()),
+        "loss": loss, "n_pixels": int(use.sum()), "lamp_phases": phases is not None,
     }
     if lamps == "auto":
         stage["lamps_evidence"] = evidence

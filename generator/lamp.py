@@ -46,6 +46,8 @@ from types import ModuleType
 
 import numpy as np
 
+from ..physics.polarization import filter_axes
+
 PLUGIN = "nearlight_lamp"
 
 
@@ -133,28 +135,6 @@ def register(mi: ModuleType) -> None:
             return f"PolarizedPointLamp[position={self.position}, intensity={self.intensity}]"
 
     mi.register_emitter(PLUGIN, lambda props: PolarizedPointLamp(props))
-
-
-def filter_axes(axis, facing) -> tuple[np.ndarray, np.ndarray]:
-    """Transmission and absorbing axes of the lamp's filter, unit vectors in its plane.
-
-    Parameters
-    ----------
-    axis : array_like, shape (3,)
-        The scene's ``lamp.polarizer_axis`` (world).
-    facing : array_like, shape (3,)
-        The filter's normal: from the lamp towards the object.
-
-    Returns
-    -------
-    transmit, absorb : ndarray, shape (3,)
-        ``transmit`` = ``axis`` projected into the filter's plane; ``absorb`` =
-        ``facing × transmit``.
-    """
-    n = np.asarray(facing, float) / np.linalg.norm(facing)
-    t = np.asarray(axis, float) - np.dot(axis, n) * n
-    t /= np.linalg.norm(t)
-    return t, np.cross(n, t)
 
 
 def polarized_lamp(position, intensity: float, axis, facing, *, extinction_ratio: float | None = None,

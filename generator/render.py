@@ -49,11 +49,10 @@ from typing import Any
 
 import numpy as np
 
-from ..capture import Camera, Capture, Rig
+from ..capture import Camera, Capture, LampFilter, Rig
 from ..errors import UserError
 from ..files.atomic import atomic_write
-from ..physics.polarization import analyzer_stack
-from .lamp import filter_axes
+from ..physics.polarization import analyzer_stack, filter_axes
 from .scene import LAMP_V1_KEYS, LampSpec, MitsubaMaterial, Scene, lamp_name, placement
 
 #: Bump when a change alters rendered values (invalidates caches).
@@ -659,6 +658,20 @@ def lamp_truth(scene: Scene, i: int = 0) -> dict[str, Any]:
     }  # fmt: skip
 
 
+def shared_lamp_filter(scene: Scene) -> LampFilter | None:
+    """``rig.lamp_filter`` of a scene whose lamps' filters share one ``polarizer_axis`` (else None).
+
+    Every filter faces ``object.position`` (:meth:`Scene.facing`), so that is
+    the filters' ``aim``: with the shared axis, what a rig whose lamps are aimed
+    at the object and whose filters were set alike knows, without knowing
+    where the lamps are.
+    """
+    axes = {tuple(float(c) for c in lamp.polarizer_axis) for lamp in scene.lamps}
+    if len(axes) != 1:
+        return None
+    return LampFilter(axis=axes.pop(), aim=tuple(float(c) for c in scene.object.position))
+
+
 def truth_of(scene: Scene) -> dict[str, Any]:
     """The capture's ``truth`` for ``scene``: ``lamps`` lists every lamp (:func:`lamp_truth`); a one-lamp scene also
     has v1's ``lamp_position`` and ``lamp_intensity``, a scene with several lamps has neither (single-lamp scoring
@@ -696,7 +709,8 @@ def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Captur
         # v1's one lamp polarizer axis; with several lamps each has its own (truth.lamps), and no one is "the" axis
         lamp_polarizer_axis=filter_axes(scene.lamp.polarizer_axis, scene.lamp_facing)[0] if one else None,
         truth=truth_of(scene),
-        rig=Rig(lamps=len(scene.lamps), lamp_polarizer_extinction_ratio=scene.lamps[0].polarizer_extinction_ratio),
+        rig=Rig(lamps=len(scene.lamps), lamp_polarizer_extinction_ratio=scene.lamps[0].polarizer_extinction_ratio,
+                lamp_filter=None if one else shared_lamp_filter(scene)),
         extra=extra,
         meta={
             "generator": {

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from nearlight.capture import FORMAT, FORMAT_V1, Camera, Capture, Rig, read_capture, write_capture
+from nearlight.capture import FORMAT, FORMAT_V1, Camera, Capture, LampFilter, Rig, read_capture, write_capture
 from nearlight.errors import UserError
 
 H, W = 6, 8
@@ -48,6 +48,14 @@ def test_writer_writes_v2_and_the_reader_round_trips_rig_and_truth(tmp_path, rng
     assert read.rig == cap.rig
     assert read.truth == cap.truth
     assert "rig" not in read.meta
+
+
+def test_the_lamps_filter_round_trips(tmp_path, rng):
+    rig = Rig(lamp_filter=LampFilter(axis=(1.0, 0.0, 0.0), aim=(0.0, 0.05, 0.0)))
+    folder = write_capture(_capture(rng, rig=rig), tmp_path / "cap")
+    doc = json.loads((folder / "capture.json").read_text())
+    assert doc["rig"]["lamp_filter"] == {"axis": [1.0, 0.0, 0.0], "aim": [0.0, 0.05, 0.0]}
+    assert read_capture(folder).rig == rig
 
 
 def test_v1_capture_keeps_its_meaning(tmp_path, rng):
@@ -101,6 +109,10 @@ def test_holes_in_P_are_read_as_no_range(tmp_path, rng):
         ("truth.lamps", [{"position": [0, 0, 1], "radius_m": -0.1}], r"truth\.lamps\[0\]\.radius_m"),
         ("truth.camera", {"position": "here"}, r"truth\.camera\.position"),
         ("truth.nuisances", [], r"truth\.nuisances: expected an object"),
+        ("rig.lamp_filter", [1, 0, 0], r"rig\.lamp_filter: expected an object \{axis, aim\}"),
+        ("rig.lamp_filter", {"axis": [1, 0], "aim": [0, 0, 0]}, r"rig\.lamp_filter\.axis: expected 3 numbers"),
+        ("rig.lamp_filter", {"axis": [0, 0, 0], "aim": [0, 0, 0]}, r"rig\.lamp_filter\.axis: expected a nonzero"),
+        ("rig.lamp_filter", {"axis": [1, 0, 0], "aim": "object"}, r"rig\.lamp_filter\.aim: expected 3 numbers"),
     ],
 )
 def test_bad_v2_key_is_one_line_naming_file_and_key(tmp_path, rng, key, value, message):

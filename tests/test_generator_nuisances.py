@@ -117,7 +117,7 @@ def _register_v1_lamp(mi) -> None:
     import drjit as dr
 
     from nearlight.generator.bsdfs import zero_struct
-    from nearlight.generator.lamp import filter_axes
+    from nearlight.physics.polarization import filter_axes
 
     class FrozenV1Lamp(mi.Emitter):
         def __init__(self, props):
