@@ -44,51 +44,56 @@ def lamp_errors_pct(capture, est) -> list[float]:
     return [s["lamp_position_error_pct"]] if n == 1 else [s[f"lamp{i}_position_error_pct"] for i in range(n)]
 
 
-def test_several_lamp_model_composes_the_one_lamp_model(rng):
+#: Two lamps' parameters ``(l₁, c₁, l₂, c₂, σ)`` at :data:`LAMPS`.
+TWO_X = np.r_[LAMPS[0], 0.3, 0.2, 0.1, LAMPS[1], 0.1, 0.2, 0.3, 0.1]
+
+
+def _small_weighted_model(rng):
+    """A one-lamp model of the two-lamp analytic board's surface (40×30), random pixel standard deviations."""
     cap = analytic_capture_lamps([{"position": p} for p in LAMPS], **TWO, width=40, height=30)
     _, obs = stage_one(cap, strict_t_max=False)
     m = obs.surface
     std = rng.uniform(0.5, 2.0, obs.specular[m].shape)
-    one = PointLampModel(obs.P[m], obs.N[m], obs.camera_position, obs.specular[m], std=std)
-    x1 = np.r_[LAMPS[0], 0.3, 0.2, 0.1, 0.1]
-    # one lamp: the same residuals (the sum of one term minus the observed, rounded alike to 1 ulp)
-    assert np.allclose(SeveralLampModel(one, 1).residuals(x1), one.residuals(x1), rtol=1e-14, atol=1e-14)
-    model = SeveralLampModel(one, 2)
-    x = np.r_[LAMPS[0], 0.3, 0.2, 0.1, LAMPS[1], 0.1, 0.2, 0.3, 0.1]
-    # the analytic Jacobian against central differences (steps 1e-6 of each parameter's size: truncation
-    # and rounding ~1e-8 relative of the largest entry)
+    return PointLampModel(obs.P[m], obs.N[m], obs.camera_position, obs.specular[m], std=std), std
+
+
+def _check_jacobian(model, x):
+    """The analytic Jacobian against central differences (steps 1e-6 of each parameter's size: truncation and
+    rounding ~1e-8 relative of the largest entry)."""
     J = model.jacobian(x)
     Jn = central_jacobian(model.residuals, x, 1e-6 * np.maximum(np.abs(x), 0.1))
     assert np.max(np.abs(J - Jn)) <= 1e-5 * np.max(np.abs(J))
+
+
+def test_several_lamp_model_composes_the_one_lamp_model(rng):
+    one, _ = _small_weighted_model(rng)
+    x1 = np.r_[LAMPS[0], 0.3, 0.2, 0.1, 0.1]
+    # one lamp: the same residuals (the sum of one term minus the observed, rounded alike to 1 ulp)
+    assert np.allclose(SeveralLampModel(one, 1).residuals(x1), one.residuals(x1), rtol=1e-14, atol=1e-14)
+    _check_jacobian(SeveralLampModel(one, 2), TWO_X)
 
 
 def test_several_lamp_model_with_phases(rng):
     # Each lamp weighted by cos 2(beta_k - beta_hat) (beta_hat made up per pixel): the Jacobian, whose position
     # columns carry the weight's derivative (central differences of beta inside the model), against central
-    # differences of the residuals (both truncate at ~1e-8 relative of the largest entry); the colours solved
+    # differences of the residuals; the colours solved
     # linearly with the weights in (the model is still linear in them); and with beta_hat = each pixel's own
     # beta of a single lamp, the weight is 1: one lamp's plain residuals.
     from nearlight.estimator.several import LampPhases
     from nearlight.physics.polarization import specular_aolp
 
-    cap = analytic_capture_lamps([{"position": p} for p in LAMPS], **TWO, width=40, height=30)
-    _, obs = stage_one(cap, strict_t_max=False)
-    m = obs.surface
-    std = rng.uniform(0.5, 2.0, obs.specular[m].shape)
-    one = PointLampModel(obs.P[m], obs.N[m], obs.camera_position, obs.specular[m], std=std)
+    one, std = _small_weighted_model(rng)
     up, axis, aim = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]), np.zeros(3)
-    phases = LampPhases(rng.uniform(-0.5, 0.5, m.sum()), up, axis, aim)
+    phases = LampPhases(rng.uniform(-0.5, 0.5, len(one.P)), up, axis, aim)
     model = SeveralLampModel(one, 2, phases)
-    x = np.r_[LAMPS[0], 0.3, 0.2, 0.1, LAMPS[1], 0.1, 0.2, 0.3, 0.1]
-    J = model.jacobian(x)
-    Jn = central_jacobian(model.residuals, x, 1e-6 * np.maximum(np.abs(x), 0.1))
-    assert np.max(np.abs(J - Jn)) <= 1e-5 * np.max(np.abs(J))
+    x = TWO_X
+    _check_jacobian(model, x)  # as the plain model's
     assert np.all(np.abs(model.weight(x[:3])) <= 1) and np.ptp(model.weight(x[:3])) > 0.1
     plain = SeveralLampModel(one, 2)
     assert not np.allclose(model.residuals(x), plain.residuals(x))
     target = SeveralLampModel(PointLampModel(one.P, one.N, one.camera, np.zeros_like(one.observed), std=std), 2,
                               phases)
-    observed = (target.residuals(x).reshape(-1, 3) * std)  # the weighted model itself as the observation
+    observed = target.residuals(x).reshape(-1, 3) * std  # the weighted model itself as the observation
     fit = SeveralLampModel(PointLampModel(one.P, one.N, one.camera, observed, std=std), 2, phases)
     np.testing.assert_allclose(fit.linear_colours(np.r_[x[:3], 0, 0, 0, x[6:9], 0, 0, 0, x[-1]]), x, rtol=1e-9)
     own = phases._replace(measured=specular_aolp(one.P, one.camera, up, x[:3], axis, aim))
