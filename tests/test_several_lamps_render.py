@@ -279,3 +279,25 @@ def test_full_counts_two_lamps_polarized_apart():
     assert max(scores["lamp0_position_error_pct"], scores["lamp1_position_error_pct"]) < 0.1
     plain = estimate(cap.replace(rig=dataclasses.replace(cap.rig, lamp_filter=None)), method="full", lamps="auto")
     assert not plain.stages["full"]["lamp_phases"] and plain.stages["full"]["n_lamps"] >= 3
+
+
+def test_lamp_phases_need_the_filter_the_camera_and_a_phase():
+    # Without rig.lamp_filter (one lamp, or lamps whose filters differ), a camera orientation, or a separation
+    # that measures a phase (maxmin), the several-lamp fit keeps the plain sum: lamp_phases is None.
+    import dataclasses
+
+    from nearlight.capture import Camera
+    from nearlight.estimator.observation import observe
+    from nearlight.estimator.several import lamp_phases
+
+    cap = render_clean(load_scene(TWO, overrides={"camera.resolution": [48, 36]}), progress=False)
+    obs = observe(cap, separation="projected")
+    assert lamp_phases(cap, obs, obs.surface, "projected").measured.shape == (int(obs.surface.sum()),)
+    assert lamp_phases(cap, obs, obs.surface, "fit") is not None
+    assert lamp_phases(cap, obs, obs.surface, "maxmin") is None
+    assert lamp_phases(cap.replace(rig=dataclasses.replace(cap.rig, lamp_filter=None)), obs, obs.surface,
+                       "projected") is None
+    no_orientation = Camera(position=cap.camera.position, fov_x_deg=cap.camera.fov_x_deg)
+    assert lamp_phases(cap.replace(camera=no_orientation), obs, obs.surface, "projected") is None
+    differ = load_scene(TWO, overrides={"camera.resolution": [48, 36], "lamps.1.polarizer_axis": [0.0, 1.0, 0.0]})
+    assert render_clean(differ, progress=False).rig.lamp_filter is None
