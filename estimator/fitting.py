@@ -110,6 +110,7 @@ def _robust_fit(
     jac: Callable[[np.ndarray], np.ndarray] | None = None,
     f_floor: float = 0.0,
     max_nfev: int = 200,
+    start_is_fit: bool = False,
 ) -> dict:
     """Robust nonlinear least squares with a sandwich covariance.
 
@@ -117,7 +118,10 @@ def _robust_fit(
     reflective): the first with a loss scale from the starting residuals, the
     second with ``f_scale = 3 × 1.4826 · MAD`` of the first pass's residuals,
     so that pixels more than ~3 noise standard deviations off (outliers,
-    saturation) are down-weighted. The covariance is the M-estimator sandwich
+    saturation) are down-weighted. When the start is itself a least-squares
+    fit (``start_is_fit``: ``full``'s final fit starts from a fit on a
+    subset of its pixels), its residuals already measure the noise: one
+    pass, with the scale from the start's residuals. The covariance is the M-estimator sandwich
     ``A⁻¹ B A⁻¹ · n/(n − p)`` with ``A = Σ ψ'(ρ) J Jᵀ``, ``B = Σ ψ(ρ)² J Jᵀ``;
     for Gaussian noise and a linear loss it is ``s² (JᵀJ)⁻¹``.
 
@@ -141,6 +145,9 @@ def _robust_fit(
         Smallest loss scale (keeps noise-free fits quadratic, so they converge fast).
     max_nfev : int
         Evaluation budget per pass.
+    start_is_fit : bool
+        ``x0`` is a least-squares fit (of these residuals or a subset of
+        them): one pass, ``f_scale = 3 × 1.4826 · MAD`` of the residuals at ``x0``.
 
     Returns
     -------
@@ -162,7 +169,10 @@ def _robust_fit(
 
     r0 = fun(x0)
     floor = max(f_floor, 1e-9 * max(float(np.max(np.abs(r0))), 1e-300))
-    scales = [f_scale] if f_scale is not None else [max(_mad(r0), floor), None]
+    if f_scale is not None:
+        scales = [f_scale]
+    else:
+        scales = [max(3.0 * _mad(r0), floor)] if start_is_fit else [max(_mad(r0), floor), None]
     res, nfev = None, 0
     for s in scales:
         if s is None:

@@ -177,7 +177,7 @@ def pixel_rays(capture: Capture) -> np.ndarray | None:
     return None if fitted is None else fitted[0]
 
 
-def pixel_ray_error(capture: Capture) -> tuple[np.ndarray, np.ndarray]:
+def pixel_ray_error(capture: Capture, step: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """How far the ray from the camera through each pixel's ``P`` misses that pixel.
 
     With ``camera.to_world`` and ``fov_x_deg`` (the generator's convention:
@@ -187,37 +187,60 @@ def pixel_ray_error(capture: Capture) -> tuple[np.ndarray, np.ndarray]:
     (:func:`_fitted_rays`) and the residual is measured with that camera's
     pixel size.
 
+    Parameters
+    ----------
+    capture : Capture
+    step : int
+        Check the lattice of every ``step``-th row and column, from row and
+        column ``step // 2`` (1: every pixel).
+
     Returns
     -------
-    error_px : ndarray, shape (H, W)
-        Distance in pixels between each pixel and where its ray lands; NaN off
-        the surface.
-    behind : ndarray, shape (H, W), bool
+    error_px : ndarray, shape (h, w)
+        Distance in pixels between each lattice pixel and where its ray
+        lands; NaN off the surface. ``h = len(rows)``, ``w = len(cols)``.
+    behind : ndarray, shape (h, w), bool
         Surface pixels whose ``P`` is behind the camera (only known with ``to_world``).
+    rows : ndarray, shape (h,), int
+        The lattice's image rows.
+    cols : ndarray, shape (w,), int
+        The lattice's image columns.
     """
     H, W = capture.height, capture.width
+    rows, cols = np.arange(step // 2, H, step), np.arange(step // 2, W, step)
+    lattice = np.ix_(rows, cols)
     C = np.asarray(capture.camera.position, dtype=float)
-    P = np.asarray(capture.P, dtype=float)
+    P = np.asarray(capture.P[lattice], dtype=float)
     finite = every_channel(np.isfinite(P))
     d = np.where(finite[..., None], P - C, np.nan)
-    error = np.full((H, W), np.nan)
-    behind = np.zeros((H, W), bool)
+    error = np.full(finite.shape, np.nan)
+    behind = np.zeros(finite.shape, bool)
     cam = capture.camera
     if cam.to_world is not None and cam.fov_x_deg is not None:
-        jj, ii = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+        jj, ii = np.meshgrid(cols + 0.5, rows + 0.5)
         col, row, z = project(d, cam.to_world, W, H, cam.fov_x_deg)
         behind = finite & ~(z > 0)
         error = np.where(finite & ~behind, np.hypot(col - jj, row - ii), np.nan)
-        return error, behind
+        return error, behind, rows, cols
     fitted = _fitted_rays(capture)
     if fitted is None:
-        return error, behind
+        return error, behind, rows, cols
     ray, pixel_angle = fitted
     unit = d / np.linalg.norm(d, axis=-1, keepdims=True)
-    angle = np.arccos(np.clip(np.sum(ray * unit, axis=-1), -1.0, 1.0))
+    angle = np.arccos(np.clip(np.sum(ray[lattice] * unit, axis=-1), -1.0, 1.0))
     if pixel_angle > 0:
         error = np.where(finite, angle / pixel_angle, np.nan)
-    return error, behind
+    return error, behind, rows, cols
+
+
+#: :func:`check_rays` looks at a lattice of about this many pixels or more
+#: (every pixel up to 2 × this many; a 640×480 capture: every 3rd row and
+#: column). The median miss over the lattice is the image's to within its
+#: spread over ~2·10⁴ samples (the analytic board and sphere at 640×480,
+#: every 3rd pixel against all: 3.52e-6 against 3.54e-6 px and 7.59e-6
+#: against 7.63e-6 px, the tolerance being 3 px), and the 1 % behind the
+#: camera within 0.1 %; 4 ms against 28 ms.
+RAY_CHECK_PIXELS = 20_000
 
 
 def check_rays(capture: Capture) -> None:
@@ -226,16 +249,17 @@ def check_rays(capture: Capture) -> None:
     Refused: more than 1 % of the surface behind the camera, or rays from the
     camera through ``P`` that miss their pixels by more than
     :data:`RAY_TOLERANCE_PX` pixels or :data:`RAY_TOLERANCE_FRACTION` of the
-    image width (whichever is larger), median over the surface.
+    image width (whichever is larger), median over the surface; both
+    measured on a lattice of about :data:`RAY_CHECK_PIXELS` pixels.
     """
-    error, behind = pixel_ray_error(capture)
-    surface = capture.surface_mask
-    n = int(surface.sum())
+    step = max(1, int(np.sqrt(capture.height * capture.width / RAY_CHECK_PIXELS)))
+    error, behind, rows, cols = pixel_ray_error(capture, step)
+    n = int(capture.surface_mask[np.ix_(rows, cols)].sum())
     if n and behind.sum() > 0.01 * n:
         i, j = np.argwhere(behind)[0]
         raise UserError(
             f"{capture.name}: channel P: {100 * behind.sum() / n:.0f}% of the surface is behind the camera "
-            f"(first at row {i}, column {j}); P does not match camera.position/to_world"
+            f"(first at row {rows[i]}, column {cols[j]}); P does not match camera.position/to_world"
         )
     tol = max(RAY_TOLERANCE_PX, RAY_TOLERANCE_FRACTION * capture.width)
     med = float(np.nanmedian(error)) if np.isfinite(error).any() else 0.0

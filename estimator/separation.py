@@ -88,7 +88,8 @@ def _neighbourhood_phase(b: np.ndarray, c: np.ndarray, size: int) -> tuple[np.nd
     nc = uniform_filter(cs, size, mode="constant") * size**2 - cs
     norm = np.hypot(nb, nc)
     safe = norm > 0
-    return np.where(safe, nb / np.where(safe, norm, 1.0), 1.0), np.where(safe, nc / np.where(safe, norm, 1.0), 0.0)
+    return (np.divide(nb, norm, out=np.ones_like(norm), where=safe),
+            np.divide(nc, norm, out=np.zeros_like(norm), where=safe))
 
 
 def specular_phase(capture: Any, *, method: str = "fit") -> np.ndarray | None:

@@ -754,7 +754,7 @@ def final_fit(model: Any, x0: np.ndarray, scale: float, *, loss: str, f_scale: f
     """
     lower, upper = lamp_bounds(len(x0))
     return robust_fit(model.residuals, x0, typical=typical_scale(x0, scale), lower=lower, upper=upper, loss=loss,
-                      f_scale=f_scale, jac=model.jacobian, f_floor=floor)
+                      f_scale=f_scale, jac=model.jacobian, f_floor=floor, start_is_fit=True)
 
 
 def loss_floor(specular: np.ndarray, std: np.ndarray | None) -> float:
