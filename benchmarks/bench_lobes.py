@@ -53,6 +53,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import time
 
 import numpy as np
@@ -170,6 +171,8 @@ def efficiency(args) -> None:
     for obj in OBJECTS:
         for level, noise in NOISE.items():
             for family in FAMILIES:
+                if not any(fnmatch.fnmatchcase(f"{obj}/{level}/{family}", row) for row in args.rows):
+                    continue
                 clean = capture(obj, family, args.sigma, *args.resolution)
                 bound = specular_crlb(clean, noise_var=camera_noise_variance(clean.stack, noise=noise))
                 lamp = np.array(clean.truth["lamp_position"])
@@ -242,6 +245,8 @@ def main() -> None:
     ap.add_argument("--sigma", type=float, default=0.1, help="Torrance–Sparrow σ of every rendered lobe, radians")
     ap.add_argument("--noise", choices=list(NOISE), default="low", help="camera noise of the mismatch table")
     ap.add_argument("--resolution", nargs=2, type=int, default=(160, 120), metavar=("W", "H"))
+    ap.add_argument("--rows", nargs="+", default=["*"], metavar="OBJECT/NOISE/FAMILY",
+                    help="the efficiency table's rows to run, shell patterns (default: all), e.g. sphere/high/ggx")
     args = ap.parse_args()
     clock = time.perf_counter()
     for name in args.tables:

@@ -111,6 +111,7 @@ def _robust_fit(
     f_floor: float = 0.0,
     max_nfev: int = 200,
     start_is_fit: bool = False,
+    tol: float = 1e-12,
 ) -> dict:
     """Robust nonlinear least squares with a sandwich covariance.
 
@@ -148,6 +149,8 @@ def _robust_fit(
     start_is_fit : bool
         ``x0`` is a least-squares fit (of these residuals or a subset of
         them): one pass, ``f_scale = 3 × 1.4826 · MAD`` of the residuals at ``x0``.
+    tol : float
+        ``least_squares``' ``xtol``, ``ftol`` and ``gtol``.
 
     Returns
     -------
@@ -163,7 +166,7 @@ def _robust_fit(
     def solve(x: np.ndarray, scale: float) -> object:
         return least_squares(
             fun, x, jac=jac, bounds=(lower, upper), loss=loss, f_scale=scale,
-            x_scale=np.asarray(typical, dtype=float), method="trf", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+            x_scale=np.asarray(typical, dtype=float), method="trf", xtol=tol, ftol=tol, gtol=tol,
             max_nfev=max_nfev,
         )
 

@@ -69,6 +69,6 @@ def weighted_fit_pixels(capture: Any, obs: Observation, *, noise: str, max_pixel
     use = fit_pixels(obs, max_pixels=max_pixels, saturation=saturation)
     camera = camera_noise(capture, surface=obs.surface) if noise == "auto" else None
     if camera is not None:
-        kept = use & ~censored_pixels(capture, camera, obs.surface)
+        kept = use & ~censored_pixels(capture, camera, obs.surface, judged=use)
         use = kept if int(kept.sum()) >= 10 else use
     return use, camera

@@ -36,7 +36,7 @@ def _maxmin(stack: np.ndarray, angles_deg: np.ndarray) -> tuple[np.ndarray, np.n
     """
     if len(np.unique(np.mod(angles_deg, 180.0))) < 2:
         raise UserError("analyzer_angles_deg: maxmin separation needs at least 2 distinct angles (mod 180°)")
-    return separate_extrema(stack.max(axis=0), stack.min(axis=0))
+    return separate_extrema(stack.max(axis=0).astype(float), stack.min(axis=0).astype(float))
 
 
 def _coefficients(stack: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:
@@ -106,7 +106,7 @@ def specular_phase(capture: Any, *, method: str = "fit") -> np.ndarray | None:
     """
     if capture.stack is None or method not in ("fit", "projected"):
         return None
-    _, b, c = _coefficients(np.asarray(capture.stack, dtype=float), np.asarray(capture.analyzer_angles_deg, float))
+    _, b, c = _coefficients(capture.stack, np.asarray(capture.analyzer_angles_deg, float))
     if method == "projected":
         ub, uc = _neighbourhood_phase(b, c, PHASE_WINDOW)
         return 0.5 * np.arctan2(uc, ub)
@@ -221,7 +221,7 @@ def separate(stack: np.ndarray, angles_deg: np.ndarray, *, method: str = "fit",
         fn = SEPARATION_METHODS[method]
     except KeyError:
         raise UserError(f"separation: expected one of {', '.join(SEPARATION_METHODS)}, got {method!r}") from None
-    stack = np.asarray(stack, dtype=float)
+    stack = np.asarray(stack)  # float64 as it is fitted (linear_stokes), or at the end (maxmin)
     angles_deg = np.asarray(angles_deg, dtype=float)
     if stack.ndim != 4 or stack.shape[0] != angles_deg.shape[0]:
         raise UserError(

@@ -72,6 +72,24 @@ def test_a_black_sphere_loses_its_dark_rim_not_its_highlight():
     assert not out[peak] and out[cap.surface_mask & (spec < 1e-6 * spec.max())].mean() > 0.95
     assert 0.3 < out[cap.surface_mask].mean() < 0.99
 
+def test_censored_pixels_judged_on_a_crop_are_those_of_the_whole_image():
+    # the smoothing runs on the judged pixels' bounding box grown by the Gaussian's radius (8 px): each
+    # judged pixel's smoothed mean sums over that radius alone, so the verdicts are the whole image's,
+    # bit for bit; checked on a black sphere's rim (many left out), a block in the middle, and blocks
+    # touching the image's corners (where the crop meets the image's edge and its reflection)
+    _, cap = _noisy(shape="sphere", kd=(0.0, 0.0, 0.0), lamp_position=(0.1, 0.1, 0.6))
+    camera, surface = camera_noise(cap), cap.surface_mask
+    whole = censored_pixels(cap, camera, surface)
+    middle, corners = np.zeros_like(surface), np.zeros_like(surface)
+    middle[20:50, 30:60] = True
+    corners[:12, :15] = corners[-9:, -11:] = True
+    for judged in (middle, corners, surface):
+        out = censored_pixels(cap, camera, surface, judged=judged)
+        assert not (out & ~judged).any()
+        np.testing.assert_array_equal(out, whole & judged)
+    assert 50 < (whole & middle).sum() < (surface & middle).sum()  # the block holds pixels left out and kept
+
+
 def test_specular_variance_predicts_the_separated_noise():
     # over 40 seeds, the empirical variance of the separated ("fit", on the pixel's own
     # phase) specular at bright pixels matches the propagated variance: each pixel's
