@@ -126,7 +126,7 @@ def camera_noise_variance(stack: np.ndarray, *, noise: Any) -> np.ndarray:
     return variance(L, model)
 
 
-def specular_crlb(capture: Any, *, noise_var: np.ndarray) -> dict[str, float]:
+def specular_crlb(capture: Any, *, noise_var: np.ndarray, pixels: np.ndarray | None = None) -> dict[str, float]:
     """CRLB of the lamp position and roughness for a capture with an analyzer stack, any lobe family.
 
     Parameters
@@ -139,6 +139,10 @@ def specular_crlb(capture: Any, *, noise_var: np.ndarray) -> dict[str, float]:
     noise_var : ndarray, shape (K, H, W, 3) or (H, W, 3) or float
         Variance of the camera noise of each analyzer image pixel, radiance
         units squared (the noise model evaluated at the noise-free stack).
+    pixels : ndarray of bool, shape (H, W), optional
+        The pixels the bound counts (default: every surface pixel with a
+        normal): e.g. those a fit keeps, for the bound of an estimator that
+        leaves the others out.
 
     Returns
     -------
@@ -157,6 +161,8 @@ def specular_crlb(capture: Any, *, noise_var: np.ndarray) -> dict[str, float]:
     bsdf = truth["bsdf"]
     lobe = LOBES[bsdf["model"]]
     mask = capture.surface_mask & np.all(np.isfinite(capture.N), axis=-1)
+    if pixels is not None:
+        mask &= pixels
     P, N = np.asarray(capture.P, float)[mask], np.asarray(capture.N, float)[mask]
     cam = np.asarray(capture.camera.position, float)
     lamp = one_lamp_position(truth, where=capture_name(capture), what="the Cramér–Rao bound")

@@ -115,6 +115,20 @@ def test_specular_crlb_scales_with_noise_and_bounds_phase():
     assert 0 < a["crlb_lamp_m"] < 0.01 and 0 < a["crlb_sigma_rel"] < 0.1
 
 
+def test_specular_crlb_over_some_pixels():
+    # every pixel given: the default bound, exactly; fewer pixels hold less information (Fisher matrices add
+    # over pixels), so the bound over the half of the surface nearer the highlight is larger, and over the
+    # half with almost no specular (the lobe's far tail) far larger
+    cap = analytic_capture(width=64, height=48, analyzer_angles_deg=[0, 45, 90, 135])
+    whole = specular_crlb(cap, noise_var=1e-6)
+    assert specular_crlb(cap, noise_var=1e-6, pixels=np.ones((48, 64), bool)) == whole
+    spec = cap.extra["truth_specular"].mean(axis=-1)
+    bright = spec >= np.median(spec[cap.surface_mask])
+    near, far = (specular_crlb(cap, noise_var=1e-6, pixels=m)["crlb_lamp_m"] for m in (bright, ~bright))
+    assert whole["crlb_lamp_m"] < near < far
+    assert far > 10 * near
+
+
 # Degenerate inputs (STYLE.md 8c: every function on [-1, 0, 1, -inf, inf, nan]): a metric is a finite float or
 # NaN, never ±inf, never an exception (pytest turns numpy's warnings into errors, so none of those either).
 # ±1e308 add overflow on the way (their differences and squares exceed float64).
