@@ -41,16 +41,20 @@ residuals at its start, a fit on a subset; tolerance 1e-8), ``check_rays``
 on a lattice of ~2·10⁴ pixels, the Stokes fit block by block, and the
 dark pixels judged only where the fit looks (the last two bit for bit).
 The noisy row was added then: on a noise-free capture the fit skips the
-camera model's work. CPU seconds per estimate (best of 5 per process,
-three processes each, the code before and after alternating, one core;
-the machine's speed drifted by ~20 % between runs, so compare within a
-run): named lobe, noise-free board 0.296–0.362 → 0.231–0.293 s, sphere
-0.268–0.317 → 0.244–0.262 s; with camera noise and no sensor block,
-board 0.422–0.497 → 0.295–0.395 s, sphere 0.458–0.468 → 0.287–0.297 s
-(ratio 0.65). Estimates within 4e-7 m. The goal is met on the noise-free
-captures it was set on; a noisy board is at it or up to 30 % over, the
-final fit's 4–5 iterations (~20 ms each at 20 000 pixels, a third of it
-the solver's SVD of the 60 000 × 7 Jacobian) its largest part.
+camera model's work. CPU seconds per estimate, best of 5 in a process,
+three processes of the code before (48686e1) and after alternating, one
+core: named lobe, noise-free board 0.335–0.388 → 0.286–0.309 s (best over
+best 0.85), sphere 0.303–0.368 → 0.271–0.299 s (0.89); with camera noise
+and no sensor block, board 0.499–0.547 → 0.324–0.354 s (0.65), sphere
+0.426–0.503 → 0.275–0.348 s (0.65); estimates within 4e-7 m. The
+machine's speed drifts by ~20 % between runs (an earlier run of the
+same pairs, before the last 1e-8 tolerance: board 0.296–0.362 →
+0.231–0.293 s): compare within a run. This script, best of 3, with the
+other core busy: board 0.297 s, sphere 0.284 s (goal met on the
+noise-free captures it was set on), the noisy board 0.39 s and sphere
+0.29 s; the final fit's 4–5
+iterations on a noisy capture (~20 ms each at 20 000 pixels, a third of
+it the solver's SVD of the 60 000 × 7 Jacobian) are its largest part.
 
 Usage::
 
