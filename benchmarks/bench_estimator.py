@@ -49,10 +49,11 @@ and no sensor block, board 0.499–0.547 → 0.324–0.354 s (0.65), sphere
 0.426–0.503 → 0.275–0.348 s (0.65); estimates within 4e-7 m. The
 machine's speed drifts by ~20 % between runs (an earlier run of the
 same pairs, before the last 1e-8 tolerance: board 0.296–0.362 →
-0.231–0.293 s): compare within a run. This script, best of 3, with the
-other core busy: board 0.297 s, sphere 0.284 s (goal met on the
-noise-free captures it was set on), the noisy board 0.39 s and sphere
-0.29 s; the final fit's 4–5
+0.231–0.293 s): compare within a run. This script, best of 3, three
+runs (one with the other core busy, two idle): named lobe, board 0.256,
+0.264, 0.297 s, sphere 0.276, 0.284, 0.301 s: at the goal on the
+noise-free captures it was set on, one run of six 1 ms over; the noisy
+board 0.283–0.39 s and sphere 0.29–0.33 s, over it; the final fit's 4–5
 iterations on a noisy capture (~20 ms each at 20 000 pixels, a third of
 it the solver's SVD of the 60 000 × 7 Jacobian) are its largest part.
 
