@@ -98,6 +98,12 @@ def capture(obj: str, family: str, sigma: float, w: int, h: int):
     return analytic_capture(width=w, height=h, bsdf=bsdf, **OBJECTS[obj])
 
 
+def with_stated_sensor(clean, noise):
+    """The noise-free capture stating the sensor its noisy captures have (``capture.sensor``): weighted
+    fits and noise rules then see that camera without its noise."""
+    return clean.replace(sensor=add_camera_noise(clean, noise=noise, seed=0).sensor)
+
+
 def lamp_error(est, cap) -> float:
     """Lamp error as a fraction of the highlight–lamp distance."""
     lamp = np.array(cap.truth["lamp_position"])
@@ -197,7 +203,7 @@ def efficiency(args) -> None:
                 bound = specular_crlb(clean, noise_var=variance)
                 # the bound over the pixels the fit keeps: the dark ones it leaves out (their readings may be
                 # clipped at zero, estimator.noise.censored_pixels) judged by the rule on the clean stack
-                stated = clean.replace(sensor=add_camera_noise(clean, noise=noise, seed=0).sensor)
+                stated = with_stated_sensor(clean, noise)
                 dark = censored_pixels(stated, camera_noise(stated), clean.surface_mask)
                 kept = specular_crlb(clean, noise_var=variance, pixels=~dark)["crlb_lamp_m"]
                 lamp = np.array(clean.truth["lamp_position"])
@@ -246,7 +252,7 @@ def separability(args) -> None:
         for level, noise in NOISE.items():
             for family in FAMILIES:
                 clean = capture(obj, family, args.sigma, *args.resolution)
-                stated = clean.replace(sensor=add_camera_noise(clean, noise=noise, seed=0).sensor)
+                stated = with_stated_sensor(clean, noise)
                 lam = {}
                 for other in FAMILIES:
                     est = fit(stated, lobe=other)
