@@ -12,8 +12,15 @@ the sensitivity study's camera noise (``low``: 50 000 e full well, 3 e read,
    σ = 0.10, when the ``render`` extra is installed), the
    median lamp error (% of the highlight–lamp distance) of ``full`` fitting
    each family, with automatic choice, and with automatic choice among the
-   others (the true family left out); the last column says whether automatic
-   choice is within 1.2× of the best fixed family (the issue's goal).
+   others (the true family left out); the last columns give automatic
+   choice's median over the best fixed family's with its 95 % bootstrap
+   interval (the seeds resampled jointly) and the verdict on the issue's
+   goal, within 1.2×: ``yes`` when the whole interval is, ``NO`` when none
+   of it is, ``undecided`` when it straddles 1.2 (more seeds decide). A
+   ratio of medians over 20 seeds is too noisy for a verdict: the sphere's
+   Ward and Beckmann rows printed 1.51 and 1.29 at 20 seeds and 1.15
+   [1.05, 1.34] and 1.04 [1.01, 1.18] at 200 (``--tables mismatch --seeds
+   200``, 1230 s; every other row 1.00–1.02, ``yes``).
 2. **Confusion**: which family automatic choice names, per rendered family,
    at each noise level (low SNR → the families nearly coincide at small σ).
 3. **Efficiency**: lamp RMSE and σ RMSE over the seeds against the
@@ -40,9 +47,15 @@ the sensitivity study's camera noise (``low``: 50 000 e full well, 3 e read,
    noise (0.16–0.37; 0.25–0.35); every other pair ≥ 39 (board Ward, low
    noise) and mostly thousands (0 wrong). On the sphere those two families
    put the lamp ~5 % apart at nearly the same χ²: the lobe's shape and the
-   lamp's position trade off there, and the mismatch table's 1.3–1.5× of
-   the best fixed family in those two rows is that ambiguity, not a choice
-   rule's fault.
+   lamp's position trade off there, and the mismatch table's excess over
+   the best fixed family in those two rows (1.15× and 1.04× at 200 seeds:
+   Beckmann named on 19 of 200 Ward seeds, Ward on 15 of 200 Beckmann ones,
+   each then ~5 % off) is that ambiguity, not a choice rule's fault.
+   Averaging the families' lamps by their evidence (weights
+   ``exp(−Δχ²/2T)``, T = 0.5–4) instead of choosing one was measured on
+   those 200 seeds and does worse on the median (Ward row 0.61–1.73 %
+   against 0.53 % chosen): the wrong family's lamp is pulled in on every
+   seed, not on the one in ten that chooses it.
 
 Printed, not asserted. The issue asks for ≥ 200 seeds in table 3
 (``--seeds 200``: 929 s on one core beside two busy ones); the default is
@@ -130,7 +143,28 @@ def pplastic_board(w: int, h: int):
     return render_clean(scene, progress=False)
 
 
-def _mismatch_row(label: str, clean, args, left_out: str | None, fits: list[str]) -> None:
+#: The issue's goal for the efficiency table: the 95 % bootstrap upper bound of RMSE / CRLB, lamp and σ.
+EFFICIENCY_GOAL = 1.2
+#: The issue's goal for the mismatch table: automatic choice's median lamp error within this factor of
+#: the best fixed family's.
+MISMATCH_GOAL = 1.2
+
+
+def _ratio_interval(errs: dict[str, np.ndarray], rng: np.random.Generator) -> tuple[float, float, float]:
+    """Median lamp error of ``auto`` over the best fixed family's, and its 95 % bootstrap interval.
+
+    Seeds are resampled jointly (every fit of a seed saw the same noise), and the best fixed family
+    is the best of each resample, as the ratio's own definition takes it.
+    """
+    auto, fixed = errs["auto"], np.stack([errs[f] for f in FAMILIES])  # (n,), (families, n)
+    ratio = np.nanmedian(auto) / np.nanmin(np.nanmedian(fixed, axis=1))
+    idx = rng.integers(0, len(auto), size=(2000, len(auto)))
+    boot = np.nanmedian(auto[idx], axis=1) / np.nanmin(np.nanmedian(fixed[:, idx], axis=2), axis=0)
+    low, high = np.percentile(boot, [2.5, 97.5])
+    return float(ratio), float(low), float(high)
+
+
+def _mismatch_row(label: str, clean, args, left_out: str | None, fits: list[str], rng: np.random.Generator) -> None:
     errs = {f: [] for f in fits}
     for seed in range(args.seeds):
         cap = add_camera_noise(clean, noise=NOISE[args.noise], seed=seed)
@@ -143,26 +177,41 @@ def _mismatch_row(label: str, clean, args, left_out: str | None, fits: list[str]
                 options = {"lobe": f}
             est = fit(cap, **options)
             errs[f].append(np.nan if est is None else lamp_error(est, cap))
-    med = {f: 100 * float(np.nanmedian(v)) if v else np.nan for f, v in errs.items()}
-    best = min(med[f] for f in FAMILIES)
-    ok = "yes" if med["auto"] <= 1.2 * best else "NO"
-    print(label + "".join(f"{med[f]:21.3f}" for f in fits) + f"{ok:>18}", flush=True)
+    errs = {f: 100 * np.array(v) for f, v in errs.items()}
+    med = {f: float(np.nanmedian(v)) if len(v) else np.nan for f, v in errs.items()}
+    ratio, low, high = _ratio_interval(errs, rng)
+    verdict = "yes" if high <= MISMATCH_GOAL else "NO" if low > MISMATCH_GOAL else "undecided"
+    print(label + "".join(f"{med[f]:21.3f}" for f in fits) + f"{ratio:8.2f} [{low:.2f}, {high:.2f}] {verdict:>9}",
+          flush=True)
 
 
 def mismatch(args) -> None:
     fits = [*FAMILIES, "auto", "auto, true left out"]
-    print(f"\n1. mismatch: median lamp error (% of distance), {args.seeds} seeds, noise {args.noise}, σ = {args.sigma}")
-    print(f"{'object':7} {'rendered':17}" + "".join(f"{f:>21}" for f in fits) + f"{'auto ≤ 1.2× best':>18}")
+    rng = np.random.default_rng(0)
+    print(f"\n1. mismatch: median lamp error (% of distance), {args.seeds} seeds, noise {args.noise}, "
+          f"σ = {args.sigma}; auto / best fixed family with its 95 % bootstrap interval, within {MISMATCH_GOAL}× "
+          "(yes: the whole interval; NO: none of it; undecided: it straddles, more seeds)")
+    print(f"{'object':7} {'rendered':17}" + "".join(f"{f:>21}" for f in fits)
+          + f"{'auto/best [95 %]':>22} {f'≤ {MISMATCH_GOAL}×':>9}")
     for obj in OBJECTS:
         for family in FAMILIES:
-            _mismatch_row(f"{obj:7} {family:17}", capture(obj, family, args.sigma, *args.resolution), args, family, fits)
+            if _wanted(args, f"{obj}/{args.noise}/{family}"):
+                _mismatch_row(f"{obj:7} {family:17}", capture(obj, family, args.sigma, *args.resolution), args, family,
+                              fits, rng)
+    if not _wanted(args, f"board/{args.noise}/pplastic"):
+        return
     try:
         clean = pplastic_board(*args.resolution)
     except ImportError:
         print("board   pplastic: skipped (Mitsuba is not installed: the `render` extra)")
         return
     # no fitted family is Mitsuba's pplastic, so "true left out" is the plain automatic choice (nan here)
-    _mismatch_row(f"{'board':7} {'pplastic (Mitsuba)':17}", clean, args, None, fits)
+    _mismatch_row(f"{'board':7} {'pplastic (Mitsuba)':17}", clean, args, None, fits, rng)
+
+
+def _wanted(args, row: str) -> bool:
+    """Whether ``--rows`` asks for the row ``object/noise/family``."""
+    return any(fnmatch.fnmatchcase(row, pattern) for pattern in args.rows)
 
 
 def confusion(args) -> None:
@@ -192,11 +241,11 @@ def efficiency(args) -> None:
     print(f"\n3. efficiency: RMSE / CRLB (95 % bootstrap upper bound), {args.seeds} seeds, σ = {args.sigma}, "
           "fits name the true family")
     print(f"{'object':7} {'noise':5} {'family':17} {'lamp ratio':>10} {'(upper)':>8} {'σ ratio':>8} {'(upper)':>8} "
-          f"{'coverage 95 %':>14} {'interval':>14} {'failed':>6} {'dark':>5} {'lamp/kept':>9} {'(upper)':>8}")
+          f"{'coverage 95 %':>14} {'interval':>14} {'failed':>6} {'dark':>5} {'lamp/kept':>9} {'(upper)':>8} {'goal':>5}")
     for obj in OBJECTS:
         for level, noise in NOISE.items():
             for family in FAMILIES:
-                if not any(fnmatch.fnmatchcase(f"{obj}/{level}/{family}", row) for row in args.rows):
+                if not _wanted(args, f"{obj}/{level}/{family}"):
                     continue
                 clean = capture(obj, family, args.sigma, *args.resolution)
                 variance = camera_noise_variance(clean.stack, noise=noise)
@@ -223,11 +272,14 @@ def efficiency(args) -> None:
                 ci = binomtest(int(inside), n).proportion_ci(0.95) if n else None
                 rl = np.sqrt(np.mean(dl**2)) / bound["crlb_lamp_m"]
                 rs = np.sqrt(np.mean(ds**2)) / bound["crlb_sigma_rel"]
-                print(f"{obj:7} {level:5} {family:17} {rl:10.2f} {_bootstrap_upper(dl, bound['crlb_lamp_m'], rng):8.2f} "
-                      f"{rs:8.2f} {_bootstrap_upper(ds, bound['crlb_sigma_rel'], rng):8.2f} {inside / max(n, 1):14.3f} "
-                      f"{f'[{ci.low:.3f}, {ci.high:.3f}]' if ci else '-':>14} {failed:6d} "
+                upper_l = _bootstrap_upper(dl, bound["crlb_lamp_m"], rng)
+                upper_s = _bootstrap_upper(ds, bound["crlb_sigma_rel"], rng)
+                # the issue's goal: both upper bounds ≤ 1.2, and the coverage interval holds 95 %
+                met = max(upper_l, upper_s) <= EFFICIENCY_GOAL and ci is not None and ci.low <= 0.95 <= ci.high
+                print(f"{obj:7} {level:5} {family:17} {rl:10.2f} {upper_l:8.2f} {rs:8.2f} {upper_s:8.2f} "
+                      f"{inside / max(n, 1):14.3f} {f'[{ci.low:.3f}, {ci.high:.3f}]' if ci else '-':>14} {failed:6d} "
                       f"{dark.sum() / clean.surface_mask.sum():5.2f} {np.sqrt(np.mean(dl**2)) / kept:9.2f} "
-                      f"{_bootstrap_upper(dl, kept, rng):8.2f}")
+                      f"{_bootstrap_upper(dl, kept, rng):8.2f} {'yes' if met else 'NO':>5}", flush=True)
 
 
 def separability(args) -> None:
@@ -279,7 +331,8 @@ def main() -> None:
     ap.add_argument("--noise", choices=list(NOISE), default="low", help="camera noise of the mismatch table")
     ap.add_argument("--resolution", nargs=2, type=int, default=(160, 120), metavar=("W", "H"))
     ap.add_argument("--rows", nargs="+", default=["*"], metavar="OBJECT/NOISE/FAMILY",
-                    help="the efficiency table's rows to run, shell patterns (default: all), e.g. sphere/high/ggx")
+                    help="the mismatch and efficiency tables' rows to run, shell patterns (default: all), e.g. sphere/high/ggx; "
+                         "the mismatch table's noise is --noise, its Mitsuba row board/<noise>/pplastic")
     args = ap.parse_args()
     clock = time.perf_counter()
     for name in args.tables:

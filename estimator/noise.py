@@ -36,8 +36,9 @@ loss quadratic there.
 Dark pixels are not the model's: a sensor clips at zero, so where a pixel's
 readings lie within a few read-noise deviations of zero some were censored,
 the separated specular there is biased and its variance under the model is
-too small, which gives those pixels the largest weights
-(:func:`censored_pixels` leaves them out of the weighted fit).
+wrong (:func:`censored_pixels` finds them; the weighted fit measures their
+specular from the readings by a censored likelihood instead,
+:mod:`~nearlight.estimator.censored`).
 """
 
 from __future__ import annotations
@@ -214,25 +215,27 @@ CENSOR_SMOOTH_PX = 2.0
 
 def censored_pixels(capture: Any, noise: CameraNoise, surface: np.ndarray, *,
                      judged: np.ndarray | None = None) -> np.ndarray:
-    """Surface pixels whose readings the sensor may have clipped at zero: out of the weighted fit.
+    """Surface pixels whose readings the sensor may have clipped at zero: not the separation's to measure.
 
     A reading is ``max(0, signal + noise)``: where the signal is within a
     few read-noise deviations ``√read_var`` of zero, some readings were
-    censored, their mean is biased upwards, and so is the separation built
-    on them, while the variance model calls those pixels the quietest and
-    weighs them most. Such pixels are those whose mean reading over the
-    analyzer angles is below :data:`CENSOR_SIGMAS` ``√read_var`` in any
-    channel; the mean is smoothed over ~:data:`CENSOR_SMOOTH_PX` pixels
-    (normalised over the surface), so which pixels are left out hardly
-    depends on their own noise (leaving out a pixel because its own draw
-    was low would bias the rest upwards). The mean reading, not the
+    censored, their mean is biased upwards and the separation built on them
+    is biased (downwards where the specular is lit: the crossed-angle
+    readings are clipped up, which flattens the sinusoid), while the
+    variance model calls those pixels the quietest and would weigh them
+    most. Such pixels are those whose mean reading over the analyzer angles
+    is below :data:`CENSOR_SIGMAS` ``√read_var`` in any channel; the mean is
+    smoothed over ~:data:`CENSOR_SMOOTH_PX` pixels (normalised over the
+    surface), so which pixels are judged dark hardly depends on their own
+    noise (choosing a pixel because its own draw was low would bias the
+    rest). The mean reading, not the
     smallest: a fully polarized specular with no diffuse (a black surface)
     has a reading near zero at the crossed angle across its whole
     highlight, which holds the lamp.
 
     Measured (``benchmarks/bench_lobes.py``' captures, 160×120, σ = 0.1, 12
-    seeds, the fit naming the true family), lamp RMSE / CRLB without and
-    with this: GGX sphere at high noise 2.00 → 1.28 (mean error
+    seeds, the fit naming the true family), lamp RMSE / CRLB with these
+    pixels fitted as separated and left out: GGX sphere at high noise 2.00 → 1.28 (mean error
     (−3.3, −5.9, −12.4) → (−0.6, −1.1, −2.3) mm); the same sphere black
     (``kd = 0``) 4.91 → 1.08; a black Torrance–Sparrow board 3.91 → 2.52
     (high noise) and 2.65 → 2.14 (low; unweighted 2.87 and 1.97); boards
@@ -257,13 +260,13 @@ def censored_pixels(capture: Any, noise: CameraNoise, surface: np.ndarray, *,
     Returns
     -------
     ndarray of bool, shape (H, W)
-        True on the (judged) surface pixels to leave out.
+        True on the (judged) surface pixels that are dark.
     """
     if capture.stack is None or capture.specular is not None or not noise.read_var > 0:
         return np.zeros(surface.shape, bool)
     judged = surface if judged is None else surface & judged
     if not judged.any():
-        return judged
+        return np.zeros(surface.shape, bool)
     rows, cols = np.nonzero(judged)
     radius = int(_TRUNCATE * CENSOR_SMOOTH_PX + 0.5)  # scipy.ndimage.gaussian_filter's
     box = (slice(max(rows.min() - radius, 0), rows.max() + radius + 1),

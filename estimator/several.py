@@ -69,10 +69,9 @@ from ..physics.polarization import specular_aolp
 from ..physics.reflectance import LOBES, channel_sum, peak_shape, roughness_for_ts_sigma, ts_sigma
 from .fitting import log_regression, robust_fit
 from .lobes import FAMILIES
-from .noise import specular_variance
 from .observation import Observation
 from .paper import RaySearch, fast_search, t_search_defaults
-from .pixels import weighted_fit_pixels
+from .pixels import FitPixels, weighted_fit_pixels
 from .separation import specular_phase
 from .result import Estimate
 
@@ -259,17 +258,22 @@ class LampPhases(NamedTuple):
         return self._replace(measured=np.ascontiguousarray(self.measured[rows]))
 
 
-def lamp_phases(capture: Capture, obs: Observation, use: np.ndarray, separation: str) -> LampPhases | None:
+def lamp_phases(capture: Capture, use: np.ndarray, separation: str,
+                fit_px: FitPixels | None = None) -> LampPhases | None:
     """:class:`LampPhases` of the fitted pixels ``use``, or None where the capture cannot give them.
 
     Needs the lamps' filter (``rig.lamp_filter``), the camera's orientation
     (``camera.to_world``) and a separation that measures a phase (``fit``,
-    ``projected``) of an analyzer stack.
+    ``projected``) of an analyzer stack. The dark pixels measured from their
+    readings (``fit_px.measured``, :func:`~nearlight.estimator.pixels.weighted_fit_pixels`) take the phase
+    they were measured along.
     """
     filt, to_world = capture.rig.lamp_filter, capture.camera.to_world
     phase = None if filt is None or to_world is None else specular_phase(capture, method=separation)
     if phase is None:
         return None
+    if fit_px is not None:
+        phase[fit_px.measured] = fit_px.measured_phase
     return LampPhases(np.ascontiguousarray(phase[use]), np.asarray(to_world, float)[:3, 1],
                       np.asarray(filt.axis, float), np.asarray(filt.aim, float))
 
@@ -935,11 +939,13 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
                             saturation=saturation, n_starts=n_starts, separation=separation, **init_options)
     clock = time.perf_counter()
     found = highlights_of(obs)
-    use, camera = weighted_fit_pixels(capture, obs, noise=noise, max_pixels=int(max_pixels), saturation=saturation)
-    std_img = None if camera is None else np.sqrt(specular_variance(capture, obs.specular, camera))
+    fit_px = weighted_fit_pixels(capture, obs, noise=noise, max_pixels=int(max_pixels), saturation=saturation)
+    use = fit_px.use
+    obs = dataclasses.replace(obs, specular=fit_px.specular)  # the dark fitted pixels measured from their readings
+    std_img = None if fit_px.camera is None else np.sqrt(fit_px.variance(capture))
     std = None if std_img is None else std_img[use]
     base = PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use], std=std)
-    phases = lamp_phases(capture, obs, use, separation)
+    phases = lamp_phases(capture, use, separation, fit_px)
     k_max = min(len(found.peaks) + 1, MAX_LAMPS) if lamps == "auto" else int(lamps)
     families = FAMILIES if lobe == "auto" else tuple(v.strip() for v in lobe.split("+"))
     stride = max(1, len(base.P) // 2000)
@@ -1040,8 +1046,9 @@ def several_estimate(capture: Capture, *, lamps: int | str, lobe: str, noise: st
         + ["roughness"],
         **{key: fit[key] for key in ("f_scale", "cost", "nfev", "status", "rms", "chi2")},
         "lobe": family, "bsdf": {"model": family, spec.colour_key: colour, spec.roughness_key: x[-1]},
-        "lobes_fitted": list(families), "noise": None if camera is None else camera._asdict(),
-        "loss": loss, "n_pixels": int(use.sum()), "lamp_phases": phases is not None,
+        "lobes_fitted": list(families), "noise": None if fit_px.camera is None else fit_px.camera._asdict(),
+        "loss": loss, "n_pixels": int(use.sum()), "n_dark_measured": int(fit_px.measured.sum()),
+        "lamp_phases": phases is not None,
     }
     if lamps == "auto":
         stage["lamps_evidence"] = evidence

@@ -240,8 +240,11 @@ def test_one_lamp_rows_keep_their_numbers(name):
     row = score(cap, est)
     base = BASE[name]
     assert list(row)[: len(base)] == list(base)  # same columns, same order, new ones after
+    # the same numbers to float64 rounding: another CPU (its vectorised math) moves the last bits of a
+    # few columns (measured: 1 ulp of ks_rel_error and direction_error_deg on an Intel Xeon against
+    # the machine the base values came from), any change of the scoring moves them by far more
     for c, v in base.items():
-        assert (math.isnan(row[c]) if v is None else row[c] == v), (c, row[c], v)
+        assert (math.isnan(row[c]) if v is None else row[c] == pytest.approx(v, rel=1e-12, abs=1e-15)), (c, row[c], v)
     # one true and one estimated lamp: no gate, 1/1/0/0 even for the far (> 20 %) estimate
     assert (row["n_lamps_true"], row["n_lamps_found"], row["lamps_missed"], row["lamps_extra"]) == (1, 1, 0, 0)
     assert not any(c.startswith("lamp0_") for c in row)

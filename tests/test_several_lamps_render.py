@@ -252,7 +252,7 @@ def test_two_lamps_separated_specular_is_the_phase_weighted_sum():
     use = obs.surface
     lamp = PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use])
     x, peak = _true_lamps(cap), obs.specular[use].max()
-    weighted = SeveralLampModel(lamp, 2, lamp_phases(cap, obs, use, "projected"))
+    weighted = SeveralLampModel(lamp, 2, lamp_phases(cap, use, "projected"))
     plain = SeveralLampModel(lamp, 2)
     assert np.abs(weighted.residuals(x)).max() < 1e-4 * peak
     assert np.abs(plain.residuals(x)).max() > 1e-2 * peak
@@ -292,12 +292,12 @@ def test_lamp_phases_need_the_filter_the_camera_and_a_phase():
 
     cap = render_clean(load_scene(TWO, overrides={"camera.resolution": [48, 36]}), progress=False)
     obs = observe(cap, separation="projected")
-    assert lamp_phases(cap, obs, obs.surface, "projected").measured.shape == (int(obs.surface.sum()),)
-    assert lamp_phases(cap, obs, obs.surface, "fit") is not None
-    assert lamp_phases(cap, obs, obs.surface, "maxmin") is None
-    assert lamp_phases(cap.replace(rig=dataclasses.replace(cap.rig, lamp_filter=None)), obs, obs.surface,
+    assert lamp_phases(cap, obs.surface, "projected").measured.shape == (int(obs.surface.sum()),)
+    assert lamp_phases(cap, obs.surface, "fit") is not None
+    assert lamp_phases(cap, obs.surface, "maxmin") is None
+    assert lamp_phases(cap.replace(rig=dataclasses.replace(cap.rig, lamp_filter=None)), obs.surface,
                        "projected") is None
     no_orientation = Camera(position=cap.camera.position, fov_x_deg=cap.camera.fov_x_deg)
-    assert lamp_phases(cap.replace(camera=no_orientation), obs, obs.surface, "projected") is None
+    assert lamp_phases(cap.replace(camera=no_orientation), obs.surface, "projected") is None
     differ = load_scene(TWO, overrides={"camera.resolution": [48, 36], "lamps.1.polarizer_axis": [0.0, 1.0, 0.0]})
     assert render_clean(differ, progress=False).rig.lamp_filter is None
