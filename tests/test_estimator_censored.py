@@ -123,3 +123,35 @@ def test_censored_specular_of_no_dark_pixel_is_empty():
     cap = add_camera_noise(clean, noise=HIGH, seed=0)
     out = censored_specular(cap, camera_noise(cap), np.zeros(cap.surface_mask.shape, bool), cap.surface_mask)
     assert out.values.shape == (0, 3) and out.variance.shape == (0, 3) and out.ok.shape == (0,)
+
+
+def test_the_weighted_fit_reads_the_dark_pixels_it_measured():
+    # weighted_fit_pixels puts the dark pixels censored_specular measured back into the fit with their
+    # own values and variances (and the phase they were measured along, for several lamps); full
+    # reports how many
+    from nearlight.estimator import estimate
+    from nearlight.estimator.noise import FLOOR
+    from nearlight.estimator.observation import observe
+    from nearlight.estimator.pixels import weighted_fit_pixels
+
+    bsdf = convert_bsdf({"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1}, "ggx")
+    clean = analytic_capture(width=96, height=72, bsdf=bsdf, shape="sphere", lamp_position=(0.1, 0.1, 0.6))
+    cap = add_camera_noise(clean, noise=HIGH, seed=0)
+    obs = observe(cap, separation="projected")
+    fit = weighted_fit_pixels(cap, obs, noise="auto", max_pixels=20000, saturation=None)
+    camera = camera_noise(cap, surface=obs.surface)
+    dark = censored_pixels(cap, camera, obs.surface)  # every surface pixel is fitted at this size
+    assert (fit.use | dark).sum() == obs.surface.sum()
+    out = censored_specular(cap, camera, dark, obs.surface)
+    rows, cols = np.nonzero(dark)
+    assert fit.measured.sum() == out.ok.sum() > 0.3 * obs.surface.sum()
+    assert not (fit.measured & ~fit.use).any()
+    np.testing.assert_array_equal(fit.specular[rows[out.ok], cols[out.ok]], out.values[out.ok])
+    np.testing.assert_array_equal(fit.specular[~dark], obs.specular[~dark])  # the rest as separated
+    floor = (FLOOR * np.nanmax(np.abs(fit.specular))) ** 2
+    np.testing.assert_array_equal(fit.variance(cap, pixels=fit.use)[fit.measured[fit.use]],
+                                  np.maximum(out.variance[out.ok], floor))
+    np.testing.assert_array_equal(fit.measured_phase, out.phase[out.ok])
+    est = estimate(cap, method="full", lobe="ggx")
+    assert est.stages["full"]["n_dark_measured"] == fit.measured.sum()
+    assert est.stages["full"]["n_pixels"] == fit.use.sum()
