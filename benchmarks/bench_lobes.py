@@ -18,9 +18,10 @@ the sensitivity study's camera noise (``low``: 50 000 e full well, 3 e read,
    goal, within 1.2×: ``yes`` when the whole interval is, ``NO`` when none
    of it is, ``undecided`` when it straddles 1.2 (more seeds decide). A
    ratio of medians over 20 seeds is too noisy for a verdict: the sphere's
-   Ward and Beckmann rows printed 1.51 and 1.29 at 20 seeds and 1.15
-   [1.05, 1.34] and 1.04 [1.01, 1.18] at 200 (``--tables mismatch --seeds
-   200``, 1230 s; every other row 1.00–1.02, ``yes``).
+   Ward and Beckmann rows printed 1.51 and 1.29 at 20 seeds and 1.16
+   [1.05, 1.34] and 1.03 [1.01, 1.18] at 200 (``--tables mismatch --seeds
+   200`` at b06c2c8, 2216 s beside other work; every other row 1.00–1.02,
+   ``yes``; the Ward row is the one ``undecided``).
 2. **Confusion**: which family automatic choice names, per rendered family,
    at each noise level (low SNR → the families nearly coincide at small σ).
 3. **Efficiency**: lamp RMSE and σ RMSE over the seeds against the
@@ -50,7 +51,7 @@ the sensitivity study's camera noise (``low``: 50 000 e full well, 3 e read,
    noise) and mostly thousands (0 wrong). On the sphere those two families
    put the lamp ~5 % apart at nearly the same χ²: the lobe's shape and the
    lamp's position trade off there, and the mismatch table's excess over
-   the best fixed family in those two rows (1.15× and 1.04× at 200 seeds:
+   the best fixed family in those two rows (1.16× and 1.03× at 200 seeds:
    Beckmann named on 19 of 200 Ward seeds, Ward on 15 of 200 Beckmann ones,
    each then ~5 % off) is that ambiguity, not a choice rule's fault.
    Averaging the families' lamps by their evidence (weights
