@@ -88,7 +88,7 @@ MAX_STEP = 2.0
 _LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
 
 
-class Sensor(NamedTuple):
+class ReadingModel(NamedTuple):
     """The reading model's numbers, radiance units.
 
     Attributes
@@ -106,18 +106,17 @@ class Sensor(NamedTuple):
     step: float
 
 
-def reading_sensor(capture: Any, noise: CameraNoise) -> Sensor:
+def reading_model(capture: Any, noise: CameraNoise) -> ReadingModel:
     """The reading model of ``capture``: its stated sensor's ADC step, else none (see the module docstring)."""
     sensor = getattr(capture, "sensor", None)
-    bits = getattr(sensor, "bits", None) if sensor is not None else None
-    saturation = getattr(sensor, "saturation", None) if sensor is not None else None
+    bits, saturation = getattr(sensor, "bits", None), getattr(sensor, "saturation", None)
     if noise.source == "sensor" and bits and saturation:
         step = float(saturation) / (2.0 ** float(bits) - 1.0)
-        return Sensor(noise.gain, max(noise.read_var - step**2 / 12.0, 0.0), step)
-    return Sensor(noise.gain, noise.read_var, 0.0)
+        return ReadingModel(noise.gain, max(noise.read_var - step**2 / 12.0, 0.0), step)
+    return ReadingModel(noise.gain, noise.read_var, 0.0)
 
 
-def _terms(R: np.ndarray, mu: np.ndarray, clipped: np.ndarray, sensor: Sensor,
+def _terms(R: np.ndarray, mu: np.ndarray, clipped: np.ndarray, sensor: ReadingModel,
            expected: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Per reading: the log-likelihood's derivative in μ and its information (observed, or expected).
 
@@ -141,7 +140,7 @@ def _terms(R: np.ndarray, mu: np.ndarray, clipped: np.ndarray, sensor: Sensor,
     return score, info
 
 
-def _clipped(R: np.ndarray, sensor: Sensor) -> np.ndarray:
+def _clipped(R: np.ndarray, sensor: ReadingModel) -> np.ndarray:
     """Readings the ADC recorded as 0: below half its step (an ADC records nothing between 0 and one step),
     or, the step unknown, within a millionth of a read deviation of 0 (a last-bit change of a 0 is still 0)."""
     return R < max(0.5 * sensor.step, 1e-6 * np.sqrt(sensor.latent_var))
@@ -153,7 +152,7 @@ def _mills(z: np.ndarray) -> np.ndarray:
 
 
 def specular_given_level(R: np.ndarray, c: np.ndarray, level: np.ndarray,
-                         sensor: Sensor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                         sensor: ReadingModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Censored ML of ``s`` in ``μ_k = level + s · c_k`` from readings clipped at zero.
 
     Parameters
@@ -164,7 +163,7 @@ def specular_given_level(R: np.ndarray, c: np.ndarray, level: np.ndarray,
         ``½ cos 2(θ_k − β)`` of each reading (:func:`coefficients`).
     level : ndarray, shape (n,)
         ``a`` of each pixel-channel, radiance.
-    sensor : Sensor
+    sensor : ReadingModel
 
     Returns
     -------
@@ -194,7 +193,7 @@ def specular_given_level(R: np.ndarray, c: np.ndarray, level: np.ndarray,
     return s, 1.0 / np.sum(info * c * c, axis=0), converged
 
 
-def level_and_specular(R: np.ndarray, c: np.ndarray, sensor: Sensor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def level_and_specular(R: np.ndarray, c: np.ndarray, sensor: ReadingModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Censored ML of ``(a, s)`` in ``μ_k = a + s · c_k`` (shapes and units as :func:`specular_given_level`).
 
     Returns
@@ -279,7 +278,7 @@ def censored_specular(capture: Any, noise: CameraNoise, dark: np.ndarray, surfac
     n = len(rows)
     if n == 0:
         return CensoredSpecular(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool), np.zeros(0))
-    sensor = reading_sensor(capture, noise)
+    sensor = reading_model(capture, noise)
     angles = np.asarray(capture.analyzer_angles_deg, dtype=float)
     radius = max(PHASE_WINDOW, 2 * LEVEL_WINDOW) // 2 + 1
     box = (slice(max(rows.min() - radius, 0), rows.max() + radius + 1),

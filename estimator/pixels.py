@@ -132,9 +132,6 @@ def weighted_fit_pixels(capture: Any, obs: Observation, *, noise: str, max_pixel
     measured[rows[out.ok], cols[out.ok]] = True
     specular = obs.specular.copy()
     specular[measured] = out.values[out.ok]
-    var_img = np.zeros(specular.shape)
-    var_img[measured] = out.variance[out.ok]
-    phase_img = np.zeros(use.shape)
-    phase_img[measured] = out.phase[out.ok]
-    return FitPixels(kept, camera, specular, measured, var_img[measured], phase_img[measured])
+    # dark's raster order, kept by the ok ones: measured's
+    return FitPixels(kept, camera, specular, measured, out.variance[out.ok], out.phase[out.ok])
 

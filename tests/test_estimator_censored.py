@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from nearlight.estimator.censored import (
-    Sensor,
+    ReadingModel,
     censored_specular,
     coefficients,
     level_and_specular,
-    reading_sensor,
+    reading_model,
     specular_given_level,
 )
 from nearlight.estimator.noise import camera_noise, censored_pixels
@@ -30,7 +30,7 @@ def test_without_clipping_the_censored_fits_are_least_squares():
     # likelihood's maximum is the least-squares solution and the information is Σ c² / variance
     rng = np.random.default_rng(0)
     n = 500
-    sensor = Sensor(gain=0.0, latent_var=0.01**2, step=0.001)
+    sensor = ReadingModel(gain=0.0, latent_var=0.01**2, step=0.001)
     beta = rng.uniform(0.0, np.pi, n)
     c = coefficients(ANGLES, beta)
     level = rng.uniform(5.0, 6.0, n)
@@ -59,7 +59,7 @@ def test_censored_specular_is_unbiased_and_calibrated_on_the_generators_readings
     noise = CameraNoise(full_well=5000, read_noise=10.0, bits=10, saturation=1.0)
     gain, step = 1.0 / 5000, 1.0 / 1023
     read = 10.0 * gain
-    sensor = Sensor(gain, read**2, step)
+    sensor = ReadingModel(gain, read**2, step)
     rng = np.random.default_rng(1)
     n = 20000
     s_true = 2.0 * read
@@ -77,16 +77,16 @@ def test_censored_specular_is_unbiased_and_calibrated_on_the_generators_readings
         assert np.mean(least_squares - s_true) < -0.25 * read
 
 
-def test_reading_sensor_takes_the_adc_step_out_of_the_stated_read_variance():
+def test_reading_model_takes_the_adc_step_out_of_the_stated_read_variance():
     clean = analytic_capture(width=32, height=24, shape="board")
     cap = add_camera_noise(clean, noise=HIGH, seed=0)
     camera = camera_noise(cap)
-    sensor = reading_sensor(cap, camera)
+    sensor = reading_model(cap, camera)
     step = cap.sensor.saturation / 1023
     assert sensor.step == pytest.approx(step, rel=1e-12)
     assert sensor.latent_var == pytest.approx((10.0 * camera.gain) ** 2, rel=1e-9)
     measured = camera_noise(cap.replace(sensor=None))
-    assert reading_sensor(cap.replace(sensor=None), measured) == Sensor(measured.gain, measured.read_var, 0.0)
+    assert reading_model(cap.replace(sensor=None), measured) == ReadingModel(measured.gain, measured.read_var, 0.0)
 
 
 def test_censored_specular_of_a_dark_sphere_is_unbiased_where_the_separation_is_not():
