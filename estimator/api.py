@@ -15,6 +15,7 @@ from .full import full_estimate
 from .options import check_options
 from .paper import initial_estimate, paper_estimate
 from .result import Estimate
+from .sanity import review
 
 #: Built-in methods: ``fn(capture, **options) -> Estimate``.
 METHODS: dict[str, Callable[..., Estimate]] = {
@@ -59,7 +60,8 @@ def load_method(spec: str) -> Callable[..., Estimate]:
     return fn
 
 
-def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", **options) -> Estimate:
+def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", sanity: bool = True,
+             **options) -> Estimate:
     """Estimate the lamp position and specular reflectance of one capture.
 
     Parameters
@@ -69,6 +71,12 @@ def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", **o
     method : str, optional
         ``"paper"`` (default), ``"paper-init"``, ``"full"``, ``"distant"``,
         ``"render-compare"`` (:data:`EXTRA_METHODS`) or a plug-in's ``"module:function"``.
+    sanity : bool, optional
+        Hold the result to the rules of :mod:`nearlight.estimator.sanity`
+        (default): one it breaks is returned refused (``status="failed"``, NaN
+        numbers, the reason in ``diagnostics["failure"]``). False only for
+        studies of a method's inner stages that read their raw numbers
+        (:mod:`nearlight.evaluation.paper_fidelity`).
     **options
         Method options (see each method's docstring), e.g. ``t_max=2.0``;
         checked against the method's declaration before it runs
@@ -79,7 +87,8 @@ def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", **o
     Estimate
         With ``method`` set to the name asked for. ``timings`` holds seconds
         per stage, summing to the run time (``{"total": …}`` when the method
-        reports none).
+        reports none; the rules' own time is ``timings["sanity"]``). Check
+        ``status`` (or ``ok``) before reading its numbers.
 
     Raises
     ------
@@ -110,4 +119,8 @@ def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", **o
     result.method = method
     if not result.timings:
         result.timings["total"] = time.perf_counter() - clock
+    if sanity and result.ok:
+        clock = time.perf_counter()
+        result = review(capture, result, options)
+        result.timings["sanity"] = time.perf_counter() - clock
     return result

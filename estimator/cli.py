@@ -64,6 +64,14 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--json {args.json}: the same file as --plot")
     capture = read_capture(args.capture)
     est = estimate(capture, method=args.method, **options)
+    if not est.ok:  # a failure with its reason (estimator.sanity): one line, the JSON if asked, exit 1
+        failure = est.diagnostics["failure"]
+        print(f"nearlight estimate: {est.method} failed ({failure['rule']}): {failure['reason']}", file=sys.stderr)
+        if args.json:
+            write_json(Path(args.json), est.to_dict(), what="the estimate")
+            print(args.json)
+        sys.stdout.flush()
+        return 1
     pos = ", ".join(f"{v:.4f}" for v in est.lamp_position)
     ks = ", ".join(f"{v:.4g}" for v in est.ks)
     # the result on stdout: the estimate, then the path of each file written

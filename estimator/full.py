@@ -37,8 +37,9 @@ from .observation import THRESHOLD, Observation, observe
 from .options import Choice, Count, CountOrZero, Positive, forwards
 from .paper import RaySearch, ray_stage, stage_one
 from .separation import SEPARATION_METHODS
-from .several import (MAX_LAMPS, best_short_fit, final_fit, loss_floor, several_estimate, several_highlights_warning,
+from .several import (MAX_LAMPS, best_short_fit, final_fit, loss_floor, several_estimate,
                       short_fit)
+from .highlights import several_highlights_warning
 from .pixels import weighted_fit_pixels
 from .result import Estimate
 from ..physics.reflectance import LOBES, finite, normalize, peak_shape, roughness_for_ts_sigma, shading_geometry, ts_sigma
@@ -385,7 +386,7 @@ def full_estimate(
         :data:`~nearlight.estimator.several.MAX_LAMPS`, or ``"auto"`` (the count
         of least BIC); see :func:`~nearlight.estimator.several.several_estimate`.
         With one lamp, an image of several separate highlights
-        (:func:`~nearlight.estimator.several.segment_highlights`) adds a line to
+        (:func:`~nearlight.estimator.highlights.segment_highlights`) adds a line to
         ``diagnostics["warnings"]``.
     **init_options
         Options of :func:`~nearlight.estimator.paper.stage_one`: ``threshold``

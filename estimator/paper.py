@@ -87,6 +87,7 @@ from threadpoolctl import threadpool_limits
 from ..capture import Capture
 from ..errors import UserError
 from .fitting import log_regression
+from .highlights import several_highlights_warning
 from .observation import THRESHOLD, Observation, observe, subpixel_peak, surface_at
 from .options import Choice, Count, Fraction, Positive, forwards
 from .separation import SEPARATION_METHODS
@@ -438,6 +439,11 @@ def ray_stage(
         if start is not None:
             extra = {"origin": origin, "ray_origin_pixel": start.tolist(), "origin_shift": float(origin_shift)}
     if strict_t_max and found["k"] >= found["k_max"]:
+        several = several_highlights_warning(obs)
+        if several is not None:  # the likelier cause: the peak ray of one lamp's highlight misses another's lamp
+            raise UserError(f"{capture.name}: specular: {several.split(':')[0]}, one lamp each, and this method "
+                            "fits one: E_p(t) along the peak ray has no minimum before t_max; use --method full "
+                            "--set lamps=auto")
         raise UserError(
             f"{capture.name}: option t_max = {t_max:.4g} m cannot reach the lamp: E_p(t) is smallest at t_max "
             "(the lamp is farther, or the peak ray misses it); raise it with --set t_max=... or use --method full"

@@ -54,6 +54,11 @@ class Estimate:
         optional last field, so that every existing ``Estimate(...)`` call and
         ``dataclasses.replace(est, lamp_position=...)`` on a one-lamp estimate
         keeps its meaning.
+    status : str
+        ``"ok"``, or ``"failed"``: the estimate broke a rule of
+        :mod:`nearlight.estimator.sanity` (:meth:`refused`); its lamp, Ks and σ
+        are then NaN, ``diagnostics["failure"]`` says which rule and why, and
+        ``diagnostics["refused"]`` keeps the numbers the method gave.
     """
 
     method: str
@@ -66,6 +71,7 @@ class Estimate:
     timings: dict[str, float] = dataclasses.field(default_factory=dict)
     light_model: dict[str, Any] = dataclasses.field(default_factory=lambda: {"type": "point"})
     lamp_positions: np.ndarray | None = None
+    status: str = "ok"
 
     def __post_init__(self) -> None:
         self.lamp_position = np.asarray(self.lamp_position, dtype=float).reshape(3)
@@ -83,10 +89,36 @@ class Estimate:
             return self.lamp_position.reshape(1, 3)
         return self.lamp_positions
 
+    @property
+    def ok(self) -> bool:
+        """True unless the estimate was refused (:meth:`refused`)."""
+        return self.status == "ok"
+
+    def refused(self, rule: str, reason: str) -> Estimate:
+        """This estimate as a failure: ``status="failed"``, NaN numbers, the rule and reason in ``diagnostics``.
+
+        Parameters
+        ----------
+        rule : str
+            The broken rule's name (:mod:`nearlight.estimator.sanity`).
+        reason : str
+            One line with the numbers that broke it.
+        """
+        refused = {"lamp_position": self.lamp_position, "ks": self.ks, "sigma": self.sigma,
+                   **({} if self.lamp_positions is None else {"lamp_positions": self.lamp_positions})}
+        nan3 = np.full(3, np.nan)
+        return dataclasses.replace(
+            self, lamp_position=nan3, ks=nan3, sigma=np.nan, covariance=None,
+            lamp_positions=None if self.lamp_positions is None else np.full_like(self.lamp_positions, np.nan),
+            diagnostics={**self.diagnostics, "failure": {"rule": rule, "reason": reason}, "refused": refused},
+            status="failed",
+        )
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict: lists for arrays, floats for scalars (NaN kept as None)."""
         return {
             "method": self.method,
+            "status": self.status,
             "lamp_position": jsonable(self.lamp_position),
             "ks": jsonable(self.ks),
             "sigma": jsonable(self.sigma),

@@ -521,13 +521,13 @@ def lamp_scores(capture: Any, estimate: Any) -> dict[str, Any]:
 def _highlights_true(capture: Any) -> float:
     """Separate highlights in the noise-free specular image (``extra["truth_specular"]``), NaN without one.
 
-    The count of :func:`~nearlight.estimator.several.segment_highlights` (the
+    The count of :func:`~nearlight.estimator.highlights.segment_highlights` (the
     estimators' own segmentation, at its default dip) over pixels with a
     surface point: where two lamps' highlights have merged into one blob it
     reads 1, so a sweep over their separation shows where they merge beside
     which methods still find both lamps.
     """
-    from ..estimator.several import segment_highlights
+    from ..estimator.highlights import segment_highlights
 
     specular = capture.extra.get("truth_specular")
     if specular is None:

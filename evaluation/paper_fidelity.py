@@ -100,7 +100,7 @@ def t_star_curve(*, shifts: Sequence[float] = (0.0, 0.1, 0.25, 0.5, 1.0), bsdf: 
     delta = float(np.linalg.norm(np.asarray(obs.peak, dtype=float) - mirror_oracle_pixel(cap, obs)))
     rows = []
     for s in shifts:
-        est = estimate(cap, method="paper-init", origin="mirror-oracle", origin_shift=float(s))
+        est = estimate(cap, method="paper-init", sanity=False, origin="mirror-oracle", origin_shift=float(s))
         origin = np.asarray(est.diagnostics["ray_origin"])
         rows.append({"s": float(s), "t_ratio": est.stages["init"]["t"] / float(np.linalg.norm(lamp - origin)),
                      "law": 1.0 / (1.0 + float(s)) if s > -1 else None})
@@ -136,7 +136,7 @@ def ward_bias(*, dc_over_t: Sequence[float] = (0.5, 0.7, 1.0, 2.0), sigma: float
         for name, bsdf in models.items():
             cap = analytic_capture(bsdf=bsdf, camera_position=tuple(cam), lamp_position=tuple(t * mirror),
                                    analyzer_angles_deg=None, **scene)
-            est = estimate(cap, method="paper-init", origin="mirror-oracle", t_max=10.0 * t)
+            est = estimate(cap, method="paper-init", sanity=False, origin="mirror-oracle", t_max=10.0 * t)
             origin = np.asarray(est.diagnostics["ray_origin"])
             row[f"{name}_t_ratio"] = est.stages["init"]["t"] / float(np.linalg.norm(t * mirror - origin))
         row["ward_bias"] = row["ward_t_ratio"] - 1.0

@@ -342,7 +342,7 @@ def write_report(
             _write_text(folder / _lamps_by_name(a), by.to_csv(index=False))
             md += [f"### Every lamp found, by {a}", "",
                    "`highlights`: separate highlights in the noise-free specular image (the estimators' "
-                   "segmentation, `nearlight.estimator.several.segment_highlights`; 1 where the lamps' highlights "
+                   "segmentation, `nearlight.estimator.highlights.segment_highlights`; 1 where the lamps' highlights "
                    "have merged into one blob), a range where the other axes change it; per method, the tasks that found every lamp and nothing extra, "
                    "of its tasks (failed ones count as not found).", "", _md(_lamps_by_wide(by)), ""]
     tables = [label_table(df, a) for a in labelled]

@@ -37,9 +37,16 @@ def _source(section: dict[str, Any]) -> str:
             f"(made by {', '.join(section['code_versions'])}).")
 
 
+def _failure(r: dict[str, Any]) -> str:
+    """A task's row that is no number: ``refused: <rule>: <reason>`` (the sanity rules) or ``failed: <error>``."""
+    if r["status"] == "failed":
+        return f"refused: {r['error'].removeprefix('estimate: ')}"
+    return f"failed: {r['error']}"
+
+
 def _failed(r: dict[str, Any], columns: int) -> list[str] | None:
     """The cells of a failed task's row (its error in the first), or None when it succeeded."""
-    return None if r["status"] == "ok" else [f"failed: {r['error']}"] + [""] * (columns - 1)
+    return None if r["status"] == "ok" else [_failure(r)] + [""] * (columns - 1)
 
 
 def _lamp_true(ex: dict[str, Any], key: str) -> Any:
@@ -144,7 +151,7 @@ def distance_section(doc: dict[str, Any]) -> str:
 
     def cell(r: dict[str, Any]) -> str:
         if r["status"] != "ok":
-            return f"failed: {r['error']}"
+            return _failure(r)
         return f"{r['lamp_position_error_pct']:.2f} % / {r['direction_error_deg']:.2f}°"
 
     highlight = {d: next((r["lamp_distance_true_m"] for m in methods if (r := by[d, m])["status"] == "ok"), None)

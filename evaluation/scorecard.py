@@ -34,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import UserError
+from ..estimator.sanity import UnsupportedEstimate
 from .metrics import INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
 from .suite import INPUT, TRUTH, checksum_problems, read_manifest, strip_truth
 
@@ -70,7 +71,7 @@ def score_case(case: Mapping[str, Any], *, method: str, options: Mapping[str, An
     Returns
     -------
     dict
-        ``status`` (``ok`` / ``error``), ``error``, the :data:`METRICS` and ``INFO_COLUMNS``
+        ``status`` (``ok``; ``failed``: the estimate refused by :mod:`nearlight.estimator.sanity`; ``error``), ``error``, the :data:`METRICS` and ``INFO_COLUMNS``
         (NaN when not computed), ``runtime_s`` (s, the method alone). Never raises.
     """
     from ..capture import read_capture
@@ -90,6 +91,9 @@ def score_case(case: Mapping[str, Any], *, method: str, options: Mapping[str, An
         row.update(estimate_columns(est))
         stage = "score"
         row.update(score(read_capture(Path(case["folder"]) / TRUTH), est))
+    except UnsupportedEstimate as exc:  # the method answered, the data do not support it: a failure, no number
+        row["status"] = "failed"
+        row["error"] = f"estimate: {exc}"
     except Exception as exc:  # a failing case is a row (a miss), not a crashed run
         last = traceback.extract_tb(exc.__traceback__)[-1]
         row["status"] = "error"

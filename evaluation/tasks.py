@@ -2,7 +2,8 @@
 
 :func:`run_task` runs in a worker process (or a Dask worker) and returns one
 tidy row: never raises for a failing estimator or render, the row then carries
-``status="error"`` and the message. The scoring itself (the metric columns,
+``status="error"`` and the message (``status="failed"`` when the estimate broke a rule of
+:mod:`nearlight.estimator.sanity`: a method's answer the data do not support). The scoring itself (the metric columns,
 :func:`~nearlight.evaluation.metrics.score`, the truth it compares with) lives
 in :mod:`nearlight.evaluation.metrics`; this module only runs it.
 """
@@ -16,15 +17,25 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from ..estimator.sanity import UnsupportedEstimate
 from .metrics import INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
 
 
 def run_method(capture: Any, method: str, options: Mapping[str, Any]) -> Any:
     """Run a built-in method by name or a ``module:function`` estimator on ``capture``, through
-    :func:`nearlight.estimator.estimate` (options checked, result type checked, timings)."""
+    :func:`nearlight.estimator.estimate` (options checked, result type checked, timings, the sanity rules).
+
+    Raises
+    ------
+    UnsupportedEstimate
+        The estimate broke a rule of :mod:`nearlight.estimator.sanity`: the row is a failure, not a number.
+    """
     from ..estimator import estimate
 
-    return estimate(capture, method=method, **options)
+    est = estimate(capture, method=method, **options)
+    if not est.ok:
+        raise UnsupportedEstimate(est)
+    return est
 
 
 def noisy_capture(clean: Any, task: Mapping[str, Any]) -> Any:
@@ -84,6 +95,9 @@ def run_task(task: Mapping[str, Any], *, renderer: Any, cache_dir: str | None) -
         row.update(score(clean, est))
         stage = "crlb"
         row.update(_crlb(clean, task))
+    except UnsupportedEstimate as exc:  # the method answered, the data do not support it: a failure, no number
+        row["status"] = "failed"
+        row["error"] = f"estimate: {exc}"
     except Exception as exc:  # a failing task is a row, not a crashed sweep
         last = traceback.extract_tb(exc.__traceback__)[-1]
         row["status"] = "error"

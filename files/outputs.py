@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -94,8 +95,18 @@ def _check_parent(out: Path) -> None:
         parent = parent.parent
     if not parent.is_dir():
         raise UserError(f"{out}: cannot write there ({parent} is not a folder)")
-    if not os.access(parent, os.W_OK | os.X_OK):
+    if not os.access(parent, os.W_OK | os.X_OK) or not _can_create_in(parent):
         raise UserError(f"{out}: cannot write there ({parent} is not a writable folder)")
+
+
+def _can_create_in(folder: Path) -> bool:
+    """Whether a folder can really be made in ``folder``: made and removed at once (``os.access`` says yes to root
+    in ``/proc`` and ``/sys``, where ``mkdir`` then fails)."""
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".nearlight-probe-", dir=folder))
+    except OSError:
+        return False
+    return True
 
 
 def check_folder(folder: str | os.PathLike, *, what: str = "output folder") -> Path:
@@ -104,7 +115,7 @@ def check_folder(folder: str | os.PathLike, *, what: str = "output folder") -> P
     if folder.exists():
         if not folder.is_dir():
             raise UserError(f"{folder}: exists and is not a folder (expected a {what})")
-        if not os.access(folder, os.W_OK | os.X_OK):
+        if not os.access(folder, os.W_OK | os.X_OK) or not _can_create_in(folder):
             raise UserError(f"{folder}: cannot write there (not a writable folder)")
         return folder
     _check_parent(folder)

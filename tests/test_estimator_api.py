@@ -46,10 +46,15 @@ def test_plugin_by_module_function(tmp_path, monkeypatch):
     """))
     monkeypatch.syspath_prepend(str(tmp_path))
     cap = analytic_capture(width=32, height=24)
+    raw = estimate(cap, method="my_estimator:guess", sanity=False, height=2.5)
+    assert raw.method == "my_estimator:guess" and raw.ok
+    np.testing.assert_array_equal(raw.lamp_position, [0, 0, 2.5])
+    assert set(raw.timings) == {"total"}  # a plug-in that reports no stage timings
+    # held to the rules (the default), the guess is refused: Ks 1 with a lamp 2.5 m up predicts no such highlight
     est = estimate(cap, method="my_estimator:guess", height=2.5)
-    assert est.method == "my_estimator:guess"
-    np.testing.assert_array_equal(est.lamp_position, [0, 0, 2.5])
-    assert set(est.timings) == {"total"}  # a plug-in that reports no stage timings
+    assert est.status == "failed" and est.diagnostics["failure"]["rule"] == "explains"
+    assert np.all(np.isnan(est.lamp_position)) and est.diagnostics["refused"]["lamp_position"].tolist() == [0, 0, 2.5]
+    assert set(est.timings) == {"total", "sanity"}
     with pytest.raises(UserError, match="expected nearlight.estimator.Estimate"):
         estimate(cap, method="my_estimator:broken")
     with pytest.raises(UserError, match="'nope'"):
@@ -68,7 +73,8 @@ def test_estimate_reads_a_directory_and_to_dict_is_strict_json(tmp_path):
     doc = json.loads(json.dumps(est.to_dict(), allow_nan=False))
     assert doc["method"] == "full"
     assert len(doc["covariance"]) == 4 and doc["covariance_params"] == ["x", "y", "z", "sigma"]
-    assert set(doc["timings"]) == {"observe", "t_search", "regression", "full"}
+    assert set(doc["timings"]) == {"observe", "t_search", "regression", "full", "sanity"}
+    assert doc["status"] == "ok"
     assert len(doc["diagnostics"]["t_grid"]) == len(doc["diagnostics"]["ep"])
 
 

@@ -20,7 +20,8 @@ from nearlight.estimator import estimate
 from nearlight.estimator.full import PointLampModel
 from nearlight.estimator.fitting import central_jacobian
 from nearlight.estimator.paper import stage_one
-from nearlight.estimator.several import START_DISTANCES, START_SIGMAS, SeveralLampModel, highlights_of, ray_starts
+from nearlight.estimator.highlights import highlights_of
+from nearlight.estimator.several import START_DISTANCES, START_SIGMAS, SeveralLampModel, ray_starts
 from nearlight.evaluation.metrics import lamp_scores
 from nearlight.generator.analytic import analytic_capture, analytic_capture_lamps
 from nearlight.generator.noise import add_camera_noise

@@ -635,6 +635,12 @@ def _output_place_cases() -> None:
         f = _write(folder / "cache", "x")
         return render(folder, folder / "out", "--cache", str(f / "renders")), str(f / "renders")
 
+    for place in ("/proc/nearlight-cache", "/sys/nearlight/renders"):  # os.access says yes to root; mkdir fails
+
+        @case(f"out-render-cache-uncreatable-{place.split('/')[1]}")
+        def build(folder, assets, place=place):
+            return render(folder, folder / "out", "--cache", place), place
+
     @case("out-show-existing-folder")
     def build(folder, assets):
         cap = _capture(folder)

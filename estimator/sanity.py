@@ -1,0 +1,286 @@
+"""The rules every estimate passes before it is reported: what the data can support.
+
+:func:`nearlight.estimator.estimate` runs :func:`check` on the result of every
+method, built-in or plug-in. An estimate that breaks a rule is not a number:
+:meth:`~nearlight.estimator.Estimate.refused` turns it into a failure
+(``status="failed"``, NaN lamp, Ks and σ, the rule and its reason in
+``diagnostics["failure"]``, the refused numbers in ``diagnostics["refused"]``),
+which ``nearlight estimate`` reports with exit status 1 and sweeps and
+scorecards count as a failed row.
+
+The rules, their thresholds, and why (docs/physics.md, "What an estimate must
+satisfy"):
+
+``finite``
+    Lamp, Ks and σ finite, Ks ≥ 0, σ > 0.
+``roughness-range``
+    σ strictly inside the lobe's range (0.0001, π/2) rad, the bounds of
+    ``full``'s fit (:func:`~nearlight.estimator.several.lamp_bounds`): a σ at a
+    bound is the fit running out of room, not a measurement.
+``reach``
+    The lamp within :data:`REACH` × the camera–highlight distance of the
+    highlight's peak point (or within the method's own ``t_max`` option when
+    larger): the volume the paper's ray search scans (its default ``t_max``,
+    :func:`~nearlight.estimator.paper.t_search_defaults`). Farther than that
+    a near-light capture cannot tell the lamp from a distant light; a method
+    that answers farther is extrapolating.
+``in-front``
+    The lamp above the tangent plane of its highlight: at least
+    :data:`IN_FRONT_MIN` of the highlight's specular energy (the observation's
+    mask, weighted by specular luminance) at pixels where ``N · (L − P) > 0``.
+    A specular lobe lit from behind its surface is zero, so a lamp behind the
+    highlight cannot have made it.
+``explains``
+    The estimate's re-synthesised specular (:func:`~nearlight.estimator.render_specular`,
+    the estimator's own forward model) explains at least :data:`EXPLAINED_MIN`
+    of the observed highlight: ``1 − Σ(S − Ŝ)² / Σ S²`` over the highlight's
+    pixels and channels. Zero means the estimate predicts no highlight (e.g.
+    Ks ≈ 0), negative one far brighter than observed. With several separate
+    highlights, a one-lamp estimate is held to the one it explains best
+    (:func:`own_highlight`), for this rule and ``in-front``.
+``located``
+    When the method gives a covariance: finite, positive semi-definite to
+    rounding, and the lamp's largest 1-σ position uncertainty at most
+    :data:`LOCATED_MAX` × the lamp–highlight distance. A lamp the data place
+    anywhere within ±100 % of its distance is not located.
+
+Several-lamp estimates (``lamp_positions`` with more than one row) get the
+``finite``, ``roughness-range``, ``reach`` and ``located`` rules, each lamp
+checked for ``finite`` and ``reach``; ``in-front`` and ``explains`` need the
+lamp each highlight pixel belongs to, which the estimate does not state.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ..capture import Capture
+from ..errors import UserError
+from .highlights import segment_highlights, several_highlights_warning
+from .observation import Observation, observe
+from .resynth import render_specular
+from .result import Estimate
+
+#: ``reach``: lamp–highlight distance over the camera–highlight distance (the paper stage's default ``t_max``).
+REACH = 10.0
+#: ``in-front``: the least fraction of the highlight's specular energy lit from the front.
+IN_FRONT_MIN = 0.5
+#: ``explains``: the least fraction of the observed highlight's energy the re-synthesis explains.
+EXPLAINED_MIN = 0.5
+#: ``located``: the largest 1-σ lamp uncertainty over the lamp–highlight distance.
+LOCATED_MAX = 1.0
+#: ``roughness-range``: the lobe's range of σ (rad), ``full``'s fit bounds.
+ROUGHNESS_RANGE = (1e-4, np.pi / 2)
+#: Relative closeness to a bound of ``ROUGHNESS_RANGE`` that counts as at it (the fit's own tolerance is 1e-8).
+AT_BOUND = 1e-6
+
+
+class UnsupportedEstimate(Exception):
+    """Raised where a refused estimate must not go on as a number (a sweep's task, a scorecard's case)."""
+
+    def __init__(self, est: Estimate):
+        failure = est.diagnostics["failure"]
+        super().__init__(f"{failure['rule']}: {failure['reason']}")
+        self.estimate = est
+
+
+class Failure(NamedTuple):
+    """A broken rule: its name (see the module docstring) and a one-line reason with the numbers."""
+
+    rule: str
+    reason: str
+
+
+def _finite(est: Estimate) -> Failure | None:
+    lamps = est.found_lamps()
+    if not (np.all(np.isfinite(lamps)) and np.all(np.isfinite(est.ks)) and np.isfinite(est.sigma)):
+        return Failure("finite", f"not finite: lamp {_vec(est.lamp_position)}, Ks {_vec(est.ks)}, σ {est.sigma:.4g}")
+    if np.any(est.ks < 0) or not est.sigma > 0:
+        return Failure("finite", f"Ks {_vec(est.ks)} negative or σ {est.sigma:.4g} not positive")
+    return None
+
+
+def _roughness(est: Estimate) -> Failure | None:
+    lo, hi = ROUGHNESS_RANGE
+    if est.sigma <= lo * (1 + AT_BOUND) or est.sigma >= hi * (1 - AT_BOUND):
+        return Failure("roughness-range", f"σ {est.sigma:.6g} rad at a bound of its range ({lo:g}, π/2): "
+                                          "the fit ran out of room")
+    return None
+
+
+def _reach(est: Estimate, obs: Observation, options: Mapping[str, Any]) -> Failure | None:
+    anchor = obs.P[obs.peak]
+    t_max = options.get("t_max")
+    reach = max(REACH * obs.scale, float(t_max) if isinstance(t_max, (int, float)) else 0.0)
+    for lamp in est.found_lamps():
+        d = float(np.linalg.norm(lamp - anchor))
+        if d > reach:
+            return Failure("reach", f"lamp {_vec(lamp)} m is {d:.4g} m from the highlight, beyond {reach:.4g} m "
+                                    f"({REACH:g} x the camera's {obs.scale:.4g} m, or t_max): the capture cannot "
+                                    "tell a lamp that far from a distant light")
+    return None
+
+
+def _in_front(est: Estimate, obs: Observation, region: np.ndarray) -> Failure | None:
+    P, N = obs.P[region], obs.N[region]
+    w = obs.specular[region].mean(axis=-1)
+    lit = np.einsum("ij,ij->i", N, est.lamp_position - P) > 0
+    frac = float(w[lit].sum() / w.sum())
+    if frac < IN_FRONT_MIN:
+        return Failure("in-front", f"lamp {_vec(est.lamp_position)} m is behind the surface at {1 - frac:.0%} of "
+                                   "the highlight (a lamp behind a surface lights no highlight on it)")
+    return None
+
+
+def explained_fraction(capture: Capture, est: Estimate, obs: Observation, region: np.ndarray | None = None) -> float:
+    """``1 − Σ(S − Ŝ)² / Σ S²`` over the highlight's pixels and channels.
+
+    Parameters
+    ----------
+    capture : Capture
+    est : Estimate
+        A one-lamp estimate (its re-synthesis, :func:`~nearlight.estimator.render_specular`).
+    obs : Observation
+        The observed specular ``S``.
+    region : ndarray, shape (H, W), bool, optional
+        The highlight's pixels; default the observation's mask.
+
+    Returns
+    -------
+    float
+        1 for a perfect re-synthesis, 0 for none (Ŝ = 0), negative when Ŝ is
+        farther from S than 0 is.
+    """
+    region = obs.mask if region is None else region
+    observed = obs.specular[region]
+    predicted = render_specular(capture, est)[region]
+    return float(1.0 - np.sum((observed - predicted) ** 2) / np.sum(observed**2))
+
+
+def own_highlight(capture: Capture, est: Estimate, obs: Observation) -> tuple[np.ndarray, float]:
+    """The highlight a one-lamp estimate answers for, and the fraction of it that it explains.
+
+    The observation's mask; with several separate highlights
+    (:func:`~nearlight.estimator.highlights.segment_highlights`), the mask's
+    part in the one the estimate explains best: a one-lamp method on a
+    several-lamp capture answers for one lamp, and is held to that one's
+    highlight (it also carries the several-highlights warning).
+
+    Returns
+    -------
+    region : ndarray, shape (H, W), bool
+    explained : float
+        :func:`explained_fraction` over ``region``.
+    """
+    labels = segment_highlights(obs.specular, obs.located).labels
+    regions = [obs.mask & (labels == k) for k in range(1, int(labels.max()) + 1)] if labels.max() > 1 else []
+    candidates = [r for r in regions if r.any()] or [obs.mask]
+    scored = [(explained_fraction(capture, est, obs, r), i) for i, r in enumerate(candidates)]
+    explained, best = max(scored)
+    return candidates[best], explained
+
+
+def _explains(est: Estimate, explained: float) -> Failure | None:
+    if not explained >= EXPLAINED_MIN:
+        return Failure("explains", f"its re-synthesised specular explains {explained:.3g} of the observed "
+                                   f"highlight (at least {EXPLAINED_MIN:g} needed): Ks {_vec(est.ks)}, "
+                                   f"σ {est.sigma:.4g} do not make this highlight")
+    return None
+
+
+def _located(est: Estimate, obs: Observation) -> Failure | None:
+    if est.covariance is None:
+        return None
+    pos = est.covariance[:3, :3]
+    if not np.all(np.isfinite(pos)):
+        return Failure("located", "the lamp's covariance is not finite: the fit's information is singular")
+    eig = np.linalg.eigvalsh(0.5 * (pos + pos.T))
+    if eig[0] < -1e-9 * max(abs(eig[-1]), 1e-300):
+        return Failure("located", f"the lamp's covariance is not positive semi-definite (eigenvalue {eig[0]:.3g} m²)")
+    sd = float(np.sqrt(max(eig[-1], 0.0)))
+    d = float(np.linalg.norm(est.lamp_position - obs.P[obs.peak]))
+    if sd > LOCATED_MAX * d:
+        return Failure("located", f"the lamp's 1-σ uncertainty {sd:.4g} m exceeds its {d:.4g} m distance from the "
+                                  "highlight: the data do not locate it")
+    return None
+
+
+def observation(capture: Capture, options: Mapping[str, Any]) -> Observation:
+    """The observation the rules hold an estimate to: :func:`~nearlight.estimator.observation.observe` with the
+    method's ``separation`` and ``threshold`` options when it has them."""
+    return observe(capture, **{k: options[k] for k in ("separation", "threshold") if k in options})
+
+
+def with_warning(est: Estimate, warning: str | None) -> Estimate:
+    """``est`` with ``warning`` in ``diagnostics["warnings"]`` (unchanged when None or already there)."""
+    warnings = est.diagnostics.get("warnings", [])
+    if warning is None or warning in warnings:
+        return est
+    est.diagnostics = {**est.diagnostics, "warnings": [*warnings, warning]}
+    return est
+
+
+def check(capture: Capture, est: Estimate, obs: Observation, options: Mapping[str, Any] | None = None) -> Failure | None:
+    """The first rule (module docstring) the estimate breaks, or None when it passes them all.
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture the estimate was made from.
+    est : Estimate
+    obs : Observation
+        The capture's observation (:func:`observation`).
+    options : mapping, optional
+        The method's options (``t_max`` widens ``reach``).
+
+    Returns
+    -------
+    Failure or None
+    """
+    options = options or {}
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        for failed in (_finite(est), _roughness(est), _reach(est, obs, options)):
+            if failed is not None:
+                return failed
+        if len(est.found_lamps()) == 1:
+            region, explained = own_highlight(capture, est, obs)
+            for failed in (_in_front(est, obs, region), _explains(est, explained)):
+                if failed is not None:
+                    return failed
+        return _located(est, obs)
+
+
+def review(capture: Capture, est: Estimate, options: Mapping[str, Any]) -> Estimate:
+    """``est`` held to the rules: refused (:meth:`~nearlight.estimator.Estimate.refused`) when it breaks one,
+    and, for a one-lamp estimate, with :func:`~nearlight.estimator.highlights.several_highlights_warning`.
+
+    Parameters
+    ----------
+    capture : Capture
+    est : Estimate
+        A method's result (``status`` ``"ok"``).
+    options : mapping
+        The method's options.
+
+    Returns
+    -------
+    Estimate
+        ``est`` itself, or its refused copy. A capture whose highlight the
+        rules cannot observe (:func:`observation` raises) refuses the estimate
+        (rule ``observable``): nothing holds the method's answer to the data.
+    """
+    try:
+        obs = observation(capture, options)
+    except UserError as exc:
+        return est.refused("observable", f"the rules cannot observe the capture's highlight: {exc}")
+    if len(est.found_lamps()) == 1:  # every one-lamp method says so on several highlights
+        est = with_warning(est, several_highlights_warning(obs))
+    failed = check(capture, est, obs, options)
+    return est if failed is None else est.refused(*failed)
+
+
+def _vec(v: np.ndarray) -> str:
+    return "(" + ", ".join(f"{x:.4g}" for x in np.asarray(v, dtype=float).ravel()) + ")"
