@@ -379,6 +379,13 @@ def full_estimate(
     its error is the highlight's own crossed-analyzer readings, near zero and
     clipped although the pixel is bright, not its dark pixels.
 
+    Whether there is a highlight at all (issue 42): ``stages["full"]["specular_evidence"]`` is
+    ``(χ²(Ks = 0) − χ²) / s²``, the −2 log-likelihood of the fitted lobe against no specular. Below
+    :data:`SPECULAR_EVIDENCE` the specular is camera noise (seven parameters fitted to pure noise
+    gain ~10–35) and ``diagnostics["warnings"]`` says that the capture does not determine the lamp:
+    e.g. the paper-v1 cylinder with its 12-bit camera, whose mirror point is off the object (peak
+    specular ~1 electron, lamp CRLB 524 m).
+
     Parameters
     ----------
     capture : Capture
