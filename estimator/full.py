@@ -60,6 +60,14 @@ def _lobe_choice(value: str) -> str:
 #: on ~2000 pixels is settled by ten times as many).
 REFIT_EVIDENCE = 50.0
 
+#: Least ``stages["full"]["specular_evidence"]`` (−2 log-likelihood of the fitted lobe against no
+#: specular, ``Ks = 0``) of a fit whose data show a highlight; below it ``full`` warns that the data do
+#: not determine the lamp (issue 42). Measured at 160×120, 4 angles, the 12-bit ``real_camera`` of
+#: suites/paper-v1.yaml: the cylinder, whose mirror point is off the object (half-angle ≥ 24.9°, 4.8 σ;
+#: peak specular 3e-5, ~1 electron, total SNR 0.06, CRLB 524 m), 7.6–24 over seeds 0–7 (pure noise
+#: fitted by seven parameters); every other paper scene ≥ 1.7e6 (seeds 0, 1), noise-free ≥ 2e9.
+SPECULAR_EVIDENCE = 100.0
+
 #: ``full``'s ``lobe`` option.
 LobeChoice = Annotated[str, AfterValidator(_lobe_choice)]
 #: ``full``'s ``lamps`` option: a number of lamps, or ``auto``.
@@ -262,6 +270,31 @@ def _chi2(model: PointLampModel, x: np.ndarray) -> float:
     return float(np.sum(np.square(model.residuals(x))))
 
 
+def _chi2_none(model: PointLampModel) -> float:
+    """Sum of squared (weighted) residuals of no specular at all (``Ks = 0``): the observed specular's own."""
+    return float(np.sum(np.square(model._weigh(model.observed))))
+
+
+def _specular_evidence(chi2_none: float, chi2_fit: float, s2: float) -> float:
+    """``(χ²(Ks = 0) − χ²(fit)) / s²``: how much better the fitted lobe explains the pixels than no specular.
+
+    A difference of −2 log-likelihood, as the lobe evidence (``s²`` the fit's
+    residual variance per value); +inf for a fit with no residual at all.
+    """
+    gain = max(chi2_none - chi2_fit, 0.0)
+    if s2 > 0:
+        return gain / s2
+    return float("inf") if gain > 0 else 0.0
+
+
+def no_specular_warning(evidence: float) -> str | None:
+    """The warning of a fit whose lobe explains the pixels hardly better than no specular (else None)."""
+    if evidence >= SPECULAR_EVIDENCE:
+        return None
+    return (f"no specular highlight above the camera noise (specular evidence {evidence:.3g} < "
+            f"{SPECULAR_EVIDENCE:g}): the lamp, Ks and sigma are not determined by this capture")
+
+
 @forwards(stage_one, fixed={"strict_t_max"})
 def full_estimate(
     capture: Capture,
@@ -346,6 +379,13 @@ def full_estimate(
     1.82 and 2.63 with its dark pixels left out; coverage 0.68 and 0.065):
     its error is the highlight's own crossed-analyzer readings, near zero and
     clipped although the pixel is bright, not its dark pixels.
+
+    Whether there is a highlight at all (issue 42): ``stages["full"]["specular_evidence"]`` is
+    ``(χ²(Ks = 0) − χ²) / s²``, the −2 log-likelihood of the fitted lobe against no specular. Below
+    :data:`SPECULAR_EVIDENCE` the specular is camera noise (seven parameters fitted to pure noise
+    gain ~10–35) and ``diagnostics["warnings"]`` says that the capture does not determine the lamp:
+    e.g. the paper-v1 cylinder with its 12-bit camera, whose mirror point is off the object (peak
+    specular ~1 electron, lamp CRLB 524 m).
 
     Parameters
     ----------
@@ -466,6 +506,7 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
     fit = fits[chosen]
     s2_all = fit["chi2"] / max(3 * len(model.P) - 7, 1)
     refit = {k: (v["chi2"] - fit["chi2"]) / s2_all for k, v in fits.items()}
+    evidence_specular = _specular_evidence(_chi2_none(model), fit["chi2"], s2_all)
     x, cov7 = fit["x"], fit["cov"]
     per_roughness = ts_sigma(chosen, 1.0)  # σ is linear in the family's roughness
     idx = [0, 1, 2, 6]
@@ -479,6 +520,7 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
         **{k: fit[k] for k in ("f_scale", "cost", "nfev", "status", "rms", "chi2")},
         "lobe": chosen, "bsdf": {"model": chosen, spec.colour_key: x[3:6], spec.roughness_key: x[6]},
         "lobe_evidence": evidence, "lobe_evidence_all_pixels": refit, "lobes_fitted": list(families),
+        "specular_evidence": evidence_specular,
         "noise": None if camera is None else camera._asdict(),
         "loss": loss, "n_pixels": int(use.sum()), "n_dark_measured": int(fit_px.measured.sum()),
         "n_starts": len(starts), "n_short_fits": tried,
@@ -490,7 +532,9 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
         sigma=per_roughness * x[6],
         covariance=cov4,
         stages={"init": init.stages["init"], "full": stage},
-        diagnostics=_with_warning({**init.diagnostics, "n_specular_pixels": int(obs.mask.sum()),
-                                   "n_start_pixels": int(start.mask.sum())}, several_highlights_warning(obs)),
+        diagnostics=_with_warning(
+            _with_warning({**init.diagnostics, "n_specular_pixels": int(obs.mask.sum()),
+                           "n_start_pixels": int(start.mask.sum())}, several_highlights_warning(obs)),
+            no_specular_warning(evidence_specular)),
         timings=timings,
     ), obs
