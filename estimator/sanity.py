@@ -38,6 +38,14 @@ satisfy"):
     Ks ≈ 0), negative one far brighter than observed. With several separate
     highlights, a one-lamp estimate is held to the one it explains best
     (:func:`own_highlight`), for this rule and ``in-front``.
+``evident``
+    The capture has a highlight: its peak stands at least
+    :data:`SIGNIFICANCE_MIN` noise deviations high
+    (:func:`highlight_significance`, the camera's noise stated or measured
+    from the stack; not checked when the capture says nothing of its noise).
+    A rule of the data, not of the estimate: below it, any method fits noise
+    (e.g. the paper-v1 cylinder, whose mirror point is off the object: its
+    specular is about one electron deep).
 ``located``
     When the method gives a covariance: finite, positive semi-definite to
     rounding, and the lamp's largest 1-σ position uncertainty at most
@@ -60,6 +68,7 @@ import numpy as np
 from ..capture import Capture
 from ..errors import UserError
 from .highlights import segment_highlights, several_highlights_warning
+from .noise import camera_noise, specular_variance
 from .observation import Observation, observe
 from .resynth import render_specular
 from .result import Estimate
@@ -70,6 +79,9 @@ REACH = 10.0
 IN_FRONT_MIN = 0.5
 #: ``explains``: the least fraction of the observed highlight's energy the re-synthesis explains.
 EXPLAINED_MIN = 0.5
+#: ``evident``: the least peak of the observed highlight in noise deviations (:func:`highlight_significance`);
+#: pure noise reaches 2–3, measured values in docs/physics.md, "What an estimate must satisfy".
+SIGNIFICANCE_MIN = 10.0
 #: ``located``: the largest 1-σ lamp uncertainty over the lamp–highlight distance.
 LOCATED_MAX = 1.0
 #: ``roughness-range``: the lobe's range of σ (rad), ``full``'s fit bounds.
@@ -135,18 +147,21 @@ def _in_front(est: Estimate, obs: Observation, region: np.ndarray) -> Failure | 
     return None
 
 
-def explained_fraction(capture: Capture, est: Estimate, obs: Observation, region: np.ndarray | None = None) -> float:
+def explained_fraction(capture: Capture, est: Estimate, obs: Observation, region: np.ndarray | None = None, *,
+                       predicted: np.ndarray | None = None) -> float:
     """``1 − Σ(S − Ŝ)² / Σ S²`` over the highlight's pixels and channels.
 
     Parameters
     ----------
     capture : Capture
     est : Estimate
-        A one-lamp estimate (its re-synthesis, :func:`~nearlight.estimator.render_specular`).
+        A one-lamp estimate (its re-synthesis Ŝ, :func:`~nearlight.estimator.render_specular`).
     obs : Observation
         The observed specular ``S``.
     region : ndarray, shape (H, W), bool, optional
         The highlight's pixels; default the observation's mask.
+    predicted : ndarray, shape (H, W, 3), optional
+        Ŝ, when already rendered.
 
     Returns
     -------
@@ -155,12 +170,13 @@ def explained_fraction(capture: Capture, est: Estimate, obs: Observation, region
         farther from S than 0 is.
     """
     region = obs.mask if region is None else region
+    predicted = render_specular(capture, est) if predicted is None else predicted
     observed = obs.specular[region]
-    predicted = render_specular(capture, est)[region]
-    return float(1.0 - np.sum((observed - predicted) ** 2) / np.sum(observed**2))
+    return float(1.0 - np.sum((observed - predicted[region]) ** 2) / np.sum(observed**2))
 
 
-def own_highlight(capture: Capture, est: Estimate, obs: Observation) -> tuple[np.ndarray, float]:
+def own_highlight(capture: Capture, est: Estimate, obs: Observation, *,
+                  predicted: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """The highlight a one-lamp estimate answers for, and the fraction of it that it explains.
 
     The observation's mask; with several separate highlights
@@ -175,12 +191,53 @@ def own_highlight(capture: Capture, est: Estimate, obs: Observation) -> tuple[np
     explained : float
         :func:`explained_fraction` over ``region``.
     """
+    predicted = render_specular(capture, est) if predicted is None else predicted
     labels = segment_highlights(obs.specular, obs.located).labels
     regions = [obs.mask & (labels == k) for k in range(1, int(labels.max()) + 1)] if labels.max() > 1 else []
     candidates = [r for r in regions if r.any()] or [obs.mask]
-    scored = [(explained_fraction(capture, est, obs, r), i) for i, r in enumerate(candidates)]
+    scored = [(explained_fraction(capture, est, obs, r, predicted=predicted), i) for i, r in enumerate(candidates)]
     explained, best = max(scored)
     return candidates[best], explained
+
+
+def highlight_significance(capture: Capture, obs: Observation) -> float | None:
+    """The observed highlight's peak over its camera noise: the 3 × 3 mean of the specular at the peak pixel,
+    in standard deviations of one pixel's separated specular.
+
+    The camera's noise is stated by the capture's ``sensor`` block or measured
+    from its stack (:func:`~nearlight.estimator.noise.camera_noise`); the
+    specular's variance is :func:`~nearlight.estimator.noise.specular_variance`'s.
+    Pure noise separates into a positive floor (an amplitude, about 1.25
+    deviations, whose 3 × 3 means peak at 2–3 over a few thousand pixels),
+    which a method can fit with a confident lamp (``distant`` on the paper-v1
+    cylinder explains 0.77 of it); a highlight stands tens to thousands of
+    deviations above it.
+
+    Returns
+    -------
+    float or None
+        Per channel mean; None when the capture says nothing of its noise
+        (no sensor block, and fewer than 4 analyzer angles or a separated
+        specular only).
+    """
+    camera = camera_noise(capture, surface=obs.surface)
+    if camera is None:
+        return None
+    i, j = obs.peak
+    window = np.zeros(obs.mask.shape, bool)
+    window[max(i - 1, 0) : i + 2, max(j - 1, 0) : j + 2] = True
+    window &= obs.located
+    sd = np.sqrt(specular_variance(capture, obs.specular, camera, pixels=window))
+    return float(np.mean(obs.specular[window].mean(axis=0) / sd.mean(axis=0)))
+
+
+def _evident(capture: Capture, obs: Observation) -> Failure | None:
+    z = highlight_significance(capture, obs)
+    if z is not None and not z >= SIGNIFICANCE_MIN:
+        return Failure("evident", f"no highlight above the camera noise: its peak is {z:.3g} noise deviations "
+                                  f"(at least {SIGNIFICANCE_MIN:g} needed; noise alone reaches 2–3): the capture "
+                                  "does not determine the lamp")
+    return None
 
 
 def _explains(est: Estimate, explained: float) -> Failure | None:
@@ -242,11 +299,12 @@ def check(capture: Capture, est: Estimate, obs: Observation, options: Mapping[st
     """
     options = options or {}
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        for failed in (_finite(est), _roughness(est), _reach(est, obs, options)):
+        for failed in (_finite(est), _roughness(est), _evident(capture, obs), _reach(est, obs, options)):
             if failed is not None:
                 return failed
         if len(est.found_lamps()) == 1:
-            region, explained = own_highlight(capture, est, obs)
+            predicted = render_specular(capture, est)
+            region, explained = own_highlight(capture, est, obs, predicted=predicted)
             for failed in (_in_front(est, obs, region), _explains(est, explained)):
                 if failed is not None:
                     return failed
