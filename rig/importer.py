@@ -101,6 +101,8 @@ def rig_capture(rig: RigFile) -> Capture:
     if rig.camera.distortion:
         stack = np.stack([_undistort(img, rig) for img in stack])
     P, N = mesh_geometry(rig) if rig.mesh is not None else (_depth_points(rig), None)
+    if rig.mesh is None:
+        check_depth_silhouette(rig, stack, P)
     cam = rig.camera
     intrinsics = Intrinsics(fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy)
     centred = (np.isclose(cam.fx, cam.fy, rtol=1e-6) and np.isclose(cam.cx, (rig.width - 1) / 2, atol=1e-3)
@@ -205,6 +207,21 @@ def _check_shape(img: np.ndarray, rig: RigFile, key: str, path: Path, *, what: s
     if img.shape[:2] != (rig.height, rig.width):
         raise UserError(f"{rig.path}: {key}: {path.name}: {what} of {img.shape[0]}x{img.shape[1]} does not match "
                         f"camera.height x camera.width {rig.height}x{rig.width}")  # fmt: skip
+
+
+def check_depth_silhouette(rig: RigFile, stack: np.ndarray, P: np.ndarray) -> None:
+    """Refuse a depth map mirrored relative to the frames: the object's silhouette in the frames (signal) and
+    in the range (valid depth) overlap clearly better with the depth flipped (:func:`nearlight.estimator.silhouette.mirrored`;
+    never refused: an object filling the image, a symmetric silhouette, a lit background)."""
+    from ..estimator.silhouette import mirrored
+
+    found = mirrored(np.nanmean(stack, axis=(0, -1)), np.isfinite(P).all(axis=-1))
+    if found is not None:
+        flip, best, base = found
+        rows = " (its rows in the other order: flip the file, or set depth.row0)" if flip.startswith("up") else ""
+        raise UserError(f"{rig.path}: depth.file: {rig.depth_file.name}: the depth map is mirrored relative to the "
+                        f"image: flipped {flip}, its valid depth covers the object's silhouette in the frames "
+                        f"({100 * best:.0f} % of the pixels with signal, {100 * base:.0f} % as stored); flip it {flip}{rows}")  # fmt: skip
 
 
 def _depth_points(rig: RigFile) -> np.ndarray:
