@@ -670,6 +670,15 @@ def _vector(x: Any, where: Path, key: str, shape: tuple[int, ...] | None) -> np.
 # --------------------------------------------------------------------------- writing
 
 
+def write_error(path: Path, exc: OSError) -> str:
+    """The one line for an ``OSError`` writing ``path``: ``no space left on <path>`` for a full disk."""
+    import errno
+
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"no space left on {path} (the disk or quota is full; nothing was written)"
+    return f"{path}: cannot write there ({exc.strerror or exc})"
+
+
 def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Write ``capture`` as a capture directory, atomically.
 
@@ -709,7 +718,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
     except OSError as exc:
-        raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None
+        raise UserError(write_error(path, exc)) from None
     old = None
     try:
         (tmp / JSON_NAME).write_text(json.dumps(capture_json(capture), indent=2) + "\n")
@@ -731,7 +740,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
         shutil.rmtree(tmp, ignore_errors=True)
         if old is not None and not path.exists() and (old / "capture").exists():
             (old / "capture").rename(path)
-        raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None
+        raise UserError(write_error(path, exc)) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         if old is not None and not path.exists() and (old / "capture").exists():

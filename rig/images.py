@@ -51,11 +51,12 @@ def read_raw(path: Path, *, key: str, rig_file: Path, channels: tuple[int, ...] 
         raise UserError(f"{where}: unknown file type {path.suffix!r} (expected {', '.join(SUFFIXES)})")
     if suffix == ".npy":
         try:
-            img = np.load(path, allow_pickle=False)
+            # mapped, not read: a header stating more data than the file holds is refused, not allocated
+            img = np.load(path, allow_pickle=False, mmap_mode="r")
         except (ValueError, OSError, EOFError) as exc:
             raise UserError(f"{where}: not a readable .npy file ({exc})") from None
-        if img.dtype.kind not in "uif":
-            raise UserError(f"{where}: expected numbers, got dtype {img.dtype}")
+        if not isinstance(img, np.ndarray) or img.dtype.kind not in "uif":
+            raise UserError(f"{where}: expected numbers, got dtype {getattr(img, 'dtype', type(img).__name__)}")
     elif suffix == ".exr":
         img = _read_exr(path, where)
     else:
@@ -66,10 +67,14 @@ def read_raw(path: Path, *, key: str, rig_file: Path, channels: tuple[int, ...] 
             raise UserError(f"{where}: not a readable {suffix[1:].upper()} image")
         if img.ndim == 3 and img.shape[2] == 3:
             img = img[..., ::-1]  # OpenCV's BGR -> RGB
+    if img.ndim == 3 and img.shape[2] == 1:  # one channel with its axis kept (H, W, 1)
+        img = img[..., 0]
     n = 1 if img.ndim == 2 else (img.shape[2] if img.ndim == 3 else -1)
     if n not in channels:
         want = " or ".join(f"{c} channel{'s' if c > 1 else ''}" for c in channels)
         raise UserError(f"{where}: expected an image of {want}, got shape {img.shape}")
+    if min(img.shape[:2]) == 0:
+        raise UserError(f"{where}: an empty image (shape {img.shape})")
     return np.ascontiguousarray(img)
 
 

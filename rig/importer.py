@@ -48,6 +48,12 @@ from .rigfile import RigFile, load_rig_file
 
 #: A demosaiced pixel counts as saturated when a DN it was interpolated from is within this fraction of white level.
 SATURATED = 0.98
+#: Frames may exceed ``white_level`` by this fraction of the black-to-white span (a sensor's own DN never do).
+DN_SLACK = 0.05
+#: ``camera.distortion`` is refused when undistorting keeps less than this fraction of the pixels with signal.
+DISTORTION_KEEP = 0.5
+#: Radiance units per full well (``saturation / exposure``) a capture's float32 images hold.
+SCALE_RANGE = (1e-30, 1e30)
 #: When ``cv2.undistortPoints`` stops: 100 iterations, or a step below 1e-12 (normalised image coordinates).
 UNDISTORT_CRITERIA = (3, 100, 1e-12)  # cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS
 #: Mitsuba's camera axes (left, up, forward) from OpenCV's (right, down, forward).
@@ -94,12 +100,24 @@ def rig_capture(rig: RigFile) -> Capture:
     stacks, saturated = [], []
     angles = None
     for i, shot in enumerate(rig.shots):
+        scale = rig.saturation / shot.exposure
+        if not SCALE_RANGE[0] <= scale <= SCALE_RANGE[1]:  # float32 radiance (and the capture's sensor) would not hold it
+            raise UserError(f"{rig.path}: polarization.saturation: {rig.saturation:g} / polarization.shots[{i}].exposure "
+                            f"{shot.exposure:g} = {scale:g} radiance units per full well, outside "
+                            f"{SCALE_RANGE[0]:g} to {SCALE_RANGE[1]:g}")  # fmt: skip
         stack, sat, angles = _shot(rig, i)
-        stacks.append(stack * (rig.saturation / shot.exposure))
+        stacks.append(stack * scale)
         saturated.append(sat)
     stack = _merge(stacks, saturated, [s.exposure for s in rig.shots])
+    _check_not_black(rig, stack, "polarization.black_level, polarization.white_level, polarization.response_gamma")
     if rig.camera.distortion:
+        lit = float((stack > 0).any(axis=(0, -1)).mean())
         stack = np.stack([_undistort(img, rig) for img in stack])
+        after = float((stack > 0).any(axis=(0, -1)).mean()) if np.isfinite(stack).all() else 0.0
+        if after < DISTORTION_KEEP * lit:
+            raise UserError(f"{rig.path}: camera.distortion: undistorting with these coefficients leaves "
+                            f"{100 * after:.0f} % of the image with signal (the frames have {100 * lit:.0f} %): "
+                            "expected OpenCV's order and scale (k1 k2 p1 p2 [k3 ...], a few tenths at most)")  # fmt: skip
     P, N = mesh_geometry(rig) if rig.mesh is not None else (_depth_points(rig), None)
     if rig.mesh is None:
         check_depth_silhouette(rig, stack, P)
@@ -134,6 +152,7 @@ def _shot(rig: RigFile, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if rig.mosaic is not None:
         frame = read_raw(shot.files[0], key=key, rig_file=rig.path)
         _check_shape(frame, rig, key, shot.files[0], what=f"a {rig.mosaic} mosaic frame")
+        _check_dn(frame, rig, key, shot.files[0])
         pattern = rig.pattern
         if rig.camera_row0 == "bottom":
             frame, pattern = frame[::-1], -pattern[::-1]
@@ -145,6 +164,7 @@ def _shot(rig: RigFile, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         for f in shot.files:
             img = read_raw(f, key=key, rig_file=rig.path, channels=(1, 3))
             _check_shape(img, rig, key, f, what="an image")
+            _check_dn(img, rig, key, f)
             imgs.append(img[::-1] if rig.camera_row0 == "bottom" else img)
         dn = np.stack([np.broadcast_to(np.asarray(im, float)[..., None], (*im.shape[:2], 3)) if im.ndim == 2
                        else np.asarray(im, float) for im in imgs])  # fmt: skip
@@ -201,6 +221,31 @@ def _undistort(img: np.ndarray, rig: RigFile) -> np.ndarray:
 
     K, dist = rig.camera.K, np.asarray(rig.camera.distortion, float)
     return np.stack([cv2.undistort(np.ascontiguousarray(img[..., c], np.float32), K, dist) for c in range(3)], axis=-1)
+
+
+def _check_dn(img: np.ndarray, rig: RigFile, key: str, path: Path) -> None:
+    """Refuse frame values no sensor of this rig file records: NaN/Inf, too few bits for the white level, DN far
+    above it (more than :data:`DN_SLACK` of the black-to-white span)."""
+    where = f"{rig.path}: {key}: {path.name}"
+    if img.dtype.kind == "f" and not np.isfinite(img).all():
+        r, c = np.argwhere(~np.isfinite(img).reshape(img.shape[0], img.shape[1], -1).all(axis=-1))[0]
+        raise UserError(f"{where}: NaN or Inf pixel (first at row {r}, column {c}); a frame holds the sensor's DN")
+    if img.dtype.kind in "ui" and rig.white_level > np.iinfo(img.dtype).max:
+        bits = np.iinfo(img.dtype).bits
+        raise UserError(f"{where}: a {bits}-bit image (DN up to {np.iinfo(img.dtype).max}) cannot reach "
+                        f"polarization.white_level {rig.white_level:g}: check the white level or the file")  # fmt: skip
+    top = float(img.max())
+    if top > rig.white_level + DN_SLACK * (rig.white_level - rig.black_level):
+        raise UserError(f"{where}: DN up to {top:g}, far above polarization.white_level {rig.white_level:g} (a sensor "
+                        "records no DN above its full well): check the white level, or the file's bit depth")  # fmt: skip
+
+
+def _check_not_black(rig: RigFile, stack: np.ndarray, keys: str) -> None:
+    """Refuse a capture with no signal at all (every linearised value 0, also once stored as float32)."""
+    if not (np.isfinite(stack) & (stack.astype(np.float32) > 0)).any():
+        files = ", ".join(sorted({f.name for s in rig.shots for f in s.files}))
+        raise UserError(f"{rig.path}: polarization: the frames ({files}) give a black capture: no pixel above "
+                        f"the black level once linearised (check {keys})")  # fmt: skip
 
 
 def _check_shape(img: np.ndarray, rig: RigFile, key: str, path: Path, *, what: str) -> None:
