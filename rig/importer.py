@@ -117,7 +117,7 @@ def rig_capture(rig: RigFile) -> Capture:
         if after < DISTORTION_KEEP * lit:
             raise UserError(f"{rig.path}: camera.distortion: undistorting with these coefficients leaves "
                             f"{100 * after:.0f} % of the image with signal (the frames have {100 * lit:.0f} %): "
-                            "expected OpenCV's order and scale (k1 k2 p1 p2 [k3 ...], a few tenths at most)")  # fmt: skip
+                            "check their order (OpenCV's: k1 k2 p1 p2 [k3 ...]) and their size")  # fmt: skip
     P, N = mesh_geometry(rig) if rig.mesh is not None else (_depth_points(rig), None)
     if rig.mesh is None:
         check_depth_silhouette(rig, stack, P)
@@ -232,7 +232,7 @@ def _check_dn(img: np.ndarray, rig: RigFile, key: str, path: Path) -> None:
         raise UserError(f"{where}: NaN or Inf pixel (first at row {r}, column {c}); a frame holds the sensor's DN")
     if img.dtype.kind in "ui" and rig.white_level > np.iinfo(img.dtype).max:
         bits = np.iinfo(img.dtype).bits
-        raise UserError(f"{where}: a {bits}-bit image (DN up to {np.iinfo(img.dtype).max}) cannot reach "
+        raise UserError(f"{where}: an image of {bits} bits (DN up to {np.iinfo(img.dtype).max}) cannot reach "
                         f"polarization.white_level {rig.white_level:g}: check the white level or the file")  # fmt: skip
     top = float(img.max())
     if top > rig.white_level + DN_SLACK * (rig.white_level - rig.black_level):
