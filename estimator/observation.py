@@ -19,7 +19,7 @@ from ..capture import Capture
 from ..errors import UserError
 from .normals import normals_from_positions
 from .separation import separate_capture
-from .silhouette import check_silhouette
+from ..capture.silhouette import check_silhouette
 from ..physics.camera import camera_rays, project
 from ..physics.reflectance import channel_sum, every_channel, normalize
 
@@ -576,7 +576,7 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = THR
     """
     P, N, V, cos_r, surface, filled = surface_geometry(capture)
     check_rays(capture)
-    check_silhouette(capture)  # a mirrored range passes check_rays (estimator/silhouette.py)
+    check_silhouette(capture)  # a mirrored range passes check_rays (capture/silhouette.py)
     spec = specular_image(capture, separation=separation)
     filled &= every_channel(np.isfinite(spec))
     located = surface | filled

@@ -256,9 +256,9 @@ def _check_shape(img: np.ndarray, rig: RigFile, key: str, path: Path, *, what: s
 
 def check_depth_silhouette(rig: RigFile, stack: np.ndarray, P: np.ndarray) -> None:
     """Refuse a depth map mirrored relative to the frames: the object's silhouette in the frames (signal) and
-    in the range (valid depth) overlap clearly better with the depth flipped (:func:`nearlight.estimator.silhouette.mirrored`;
+    in the range (valid depth) overlap clearly better with the depth flipped (:func:`nearlight.capture.silhouette.mirrored`;
     never refused: an object filling the image, a symmetric silhouette, a lit background)."""
-    from ..estimator.silhouette import mirrored
+    from ..capture.silhouette import mirrored
 
     found = mirrored(np.nanmean(stack, axis=(0, -1)), np.isfinite(P).all(axis=-1))
     if found is not None:

@@ -4,7 +4,7 @@ The rig simulator's round trip of an analytic board (and an off-centre
 sphere) with its depth map flipped: `rig import` refuses it in one line naming
 the depth file and the flip; the same capture imported with that check off
 (as made elsewhere) is refused by `estimate`; the unflipped ones are accepted.
-Thresholds: ``estimator/silhouette.py``, measured by ``scripts/measure_silhouette.py``.
+Thresholds: ``capture/silhouette.py``, measured by ``benchmarks/bench_silhouette.py``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import pytest
 
 from nearlight.capture import write_capture
 from nearlight.cli import main
-from nearlight.estimator.silhouette import mirrored
+from nearlight.capture.silhouette import mirrored
 from nearlight.generator.analytic import analytic_capture
 
 pytest.importorskip("polanalyser")

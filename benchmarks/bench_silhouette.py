@@ -1,12 +1,12 @@
 """Measure the silhouette overlap (IoU) of good rig round trips and of their flipped depth maps.
 
-    .venv/bin/python scripts/measure_silhouette.py [--mitsuba]
+    .venv/bin/python benchmarks/bench_silhouette.py [--mitsuba]
 
 Each capture is exported by the rig simulator (``rig export``: mono mosaic, 16-bit PNG depth in mm), its
 depth map flipped up/down, left/right and both, and each version imported with the importer's own check
 switched off; printed: the IoU of the frames' silhouette with the range's as stored and under each flip,
-and what :func:`nearlight.estimator.silhouette.mirrored` says (``-``: accepted). The thresholds in
-``estimator/silhouette.py`` and ``docs/rig-files.md`` come from this printout.
+and what :func:`nearlight.capture.silhouette.mirrored` says (``-``: accepted). The thresholds in
+``capture/silhouette.py`` and ``docs/rig-files.md`` come from this printout.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import numpy as np
 
 from nearlight.capture import write_capture
 from nearlight.generator.analytic import analytic_capture
-from nearlight.estimator.silhouette import mirrored, silhouette_overlap
+from nearlight.capture.silhouette import mirrored, silhouette_overlap
 from nearlight.rig import importer
 from nearlight.rig.export import export_rig
 from nearlight.rig.rigfile import load_rig_file
