@@ -131,24 +131,44 @@ def mirrored(lum: np.ndarray, valid: np.ndarray) -> tuple[str, float, float] | N
     return None
 
 
-def capture_luminance(capture) -> np.ndarray | None:
-    """``[H, W]``: a capture's mean analyzer image (or its diffuse + specular), None without either."""
+#: :func:`check_silhouette` looks at a lattice of about this many pixels (every pixel up to 2 x this many).
+CHECK_PIXELS = 20_000
+
+
+def lattice(height: int, width: int, pixels: int = CHECK_PIXELS) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of a lattice of about ``pixels`` pixels, centred, so that a flip maps it onto itself
+    (to within one pixel)."""
+    step = max(1, int(np.sqrt(height * width / pixels)))
+
+    def axis(n: int) -> np.ndarray:
+        k = (n - 1) // step + 1
+        return np.arange(k) * step + (n - 1 - (k - 1) * step) // 2
+
+    return axis(height), axis(width)
+
+
+def capture_luminance(capture, rows: np.ndarray | None = None, cols: np.ndarray | None = None) -> np.ndarray | None:
+    """``[h, w]``: a capture's mean analyzer image (or its diffuse + specular) on the lattice ``rows`` x ``cols``
+    (default every pixel); None without either."""
+    at = np.ix_(np.arange(capture.height) if rows is None else rows, np.arange(capture.width) if cols is None else cols)
     if capture.stack is not None:
-        return np.nanmean(np.asarray(capture.stack, float), axis=(0, -1))
+        return np.nanmean(np.asarray(capture.stack[(slice(None), *at)], float), axis=(0, -1))
     if capture.diffuse is None:  # a specular image alone is the highlight, not the object
         return None
-    imgs = [np.asarray(i, float) for i in (capture.diffuse, capture.specular) if i is not None]
+    imgs = [np.asarray(i[at], float) for i in (capture.diffuse, capture.specular) if i is not None]
     return np.nansum(imgs, axis=0).mean(axis=-1)
 
 
 def check_silhouette(capture) -> None:
-    """Raise :class:`~nearlight.errors.UserError` when ``P`` is the image's geometry mirrored (:func:`mirrored`)."""
+    """Raise :class:`~nearlight.errors.UserError` when ``P`` is the image's geometry mirrored (:func:`mirrored`),
+    judged on a lattice of about :data:`CHECK_PIXELS` pixels (a 640x480 capture: every 3rd row and column)."""
     from ..errors import UserError
 
-    lum = capture_luminance(capture)
+    rows, cols = lattice(capture.height, capture.width)
+    lum = capture_luminance(capture, rows, cols)
     if lum is None:
         return
-    found = mirrored(lum, capture.surface_mask)
+    found = mirrored(lum, capture.surface_mask[np.ix_(rows, cols)])
     if found is not None:
         flip, best, base = found
         raise UserError(
