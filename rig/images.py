@@ -45,6 +45,8 @@ def read_raw(path: Path, *, key: str, rig_file: Path, channels: tuple[int, ...] 
     """
     where = f"{rig_file}: {key}: {path.name}"
     if not path.is_file():
+        if path.exists():
+            raise UserError(f"{where}: not a regular file (a folder or a device)")
         raise UserError(f"{where}: no such file (paths are relative to the rig file's folder)")
     suffix = path.suffix.lower()
     if suffix not in SUFFIXES:

@@ -52,6 +52,12 @@ SATURATED = 0.98
 DN_SLACK = 0.05
 #: ``camera.distortion`` is refused when undistorting keeps less than this fraction of the pixels with signal.
 DISTORTION_KEEP = 0.5
+#: ``depth.distortion`` is refused when its undistortion, distorted again, misses the pixels by more (median, px).
+DEPTH_DISTORTION_PX = 0.5
+#: ... or when it scales the field (95th percentile of the undistorted points' distance from the principal point
+#: over the pinhole's) outside this range: k1 = 1000 squeezes a 50° depth map to 0.15 of its field; a strong
+#: pincushion (k1 = 0.3) to 0.93 at its corners; a fisheye's barrel spreads it.
+DEPTH_SPREAD = (0.5, 10.0)
 #: Radiance units per full well (``saturation / exposure``) a capture's float32 images hold.
 SCALE_RANGE = (1e-30, 1e30)
 #: When ``cv2.undistortPoints`` stops: 100 iterations, or a step below 1e-12 (normalised image coordinates).
@@ -269,6 +275,34 @@ def check_depth_silhouette(rig: RigFile, stack: np.ndarray, P: np.ndarray) -> No
                         f"({100 * best:.0f} % of the pixels with signal, {100 * base:.0f} % as stored); flip it {flip}{rows}")  # fmt: skip
 
 
+def _check_depth_distortion(rig: RigFile, xy: np.ndarray, pixels: np.ndarray) -> None:
+    """Refuse ``depth.distortion`` that does not invert over the depth map: the undistorted points, distorted
+    again (``cv2.projectPoints``), must land within :data:`DEPTH_DISTORTION_PX` of their pixels (median)."""
+    import cv2
+
+    d = rig.depth
+    with np.errstate(all="ignore"):
+        ok = np.isfinite(xy).all(axis=1)
+        back = np.full_like(pixels, np.nan)
+        if ok.any():
+            obj = np.concatenate([xy[ok], np.ones((int(ok.sum()), 1))], axis=1).reshape(-1, 1, 3)
+            back[ok] = cv2.projectPoints(obj, np.zeros(3), np.zeros(3), d.K, np.asarray(d.distortion, float))[0].reshape(-1, 2)
+        miss = np.linalg.norm(back - pixels, axis=1)
+    med = float(np.median(np.where(np.isfinite(miss), miss, np.inf))) if miss.size else 0.0
+    pinhole = np.hypot((pixels[:, 0] - d.cx) / d.fx, (pixels[:, 1] - d.cy) / d.fy)
+    spread = (float(np.percentile(np.hypot(*xy[ok].T), 95) / max(np.percentile(pinhole[ok], 95), 1e-12))
+              if ok.any() else 0.0)  # fmt: skip
+    if med <= DEPTH_DISTORTION_PX and not DEPTH_SPREAD[0] <= spread <= DEPTH_SPREAD[1]:
+        raise UserError(f"{rig.path}: depth.distortion: undistorting with these coefficients scales the depth map's "
+                        f"field by {spread:.3g} (the 95th percentile of the distance from the principal point; a lens: "
+                        f"{DEPTH_SPREAD[0]:.2g} to {DEPTH_SPREAD[1]:g}): check their order (OpenCV's: k1 k2 p1 p2 "
+                        "[k3 ...]) and their size")  # fmt: skip
+    if not med <= DEPTH_DISTORTION_PX:
+        raise UserError(f"{rig.path}: depth.distortion: these coefficients do not invert over the depth map (its "
+                        f"pixels, undistorted and distorted again, land {med:.3g} px away, median): check their "
+                        "order (OpenCV's: k1 k2 p1 p2 [k3 ...]) and their size")  # fmt: skip
+
+
 def _depth_points(rig: RigFile) -> np.ndarray:
     """``P`` ``[H, W, 3]`` in the world frame from the depth map (z along the depth sensor's axis)."""
     key = "depth.file"
@@ -296,6 +330,7 @@ def _depth_points(rig: RigFile) -> np.ndarray:
         pts = np.stack([u, v], axis=-1).astype(np.float64).reshape(-1, 1, 2)
         # iterated to convergence (OpenCV's default stops after 5 iterations: pixels off under strong distortion)
         xy = cv2.undistortPoints(pts, d.K, np.asarray(d.distortion, float), criteria=UNDISTORT_CRITERIA).reshape(-1, 2)
+        _check_depth_distortion(rig, xy, pts.reshape(-1, 2))
     else:
         xy = np.stack([(u - d.cx) / d.fx, (v - d.cy) / d.fy], axis=-1)
     X = np.concatenate([xy, np.ones((xy.shape[0], 1))], axis=1) * z[v, u][:, None]

@@ -6,10 +6,10 @@ analytic board) in its own folder, runs ``nearlight rig import`` in-process
 and asserts exit status 2, exactly one stderr line ``nearlight: error: ...``
 naming the culprit (the file or key), no traceback, and the case's folder
 byte-for-byte unchanged (no capture, no ``.partial`` left). Families:
-absurd distortion, response gamma, sensor bits and saturation; frames with
+absurd camera and depth distortion, response gamma, sensor bits and saturation; frames with
 NaN/Inf, too few bits or DN far above the white level; arrays of the wrong
 shape (a trailing axis of 1 is accepted: a control); damaged ``.npy``
-headers; a rig file that is a device (``/dev/zero``); paths that leave the
+headers; a rig file that is a device (``/dev/zero``), raw files linked to it; paths that leave the
 rig file's folder. A full disk under ``rig import`` and ``rig export`` is
 tested apart (a writer monkeypatched to raise ``ENOSPC``).
 """
@@ -37,7 +37,16 @@ cv2 = pytest.importorskip("cv2")
 _spec = importlib.util.spec_from_file_location("_fuzz_inputs", Path(__file__).with_name("test_fuzz_inputs.py"))
 _fuzz = sys.modules.setdefault("_fuzz_inputs", importlib.util.module_from_spec(_spec))  # dataclasses need it there
 _spec.loader.exec_module(_fuzz)
-Case, _write, _dump, _snapshot, SEED = _fuzz.Case, _fuzz._write, _fuzz._dump, _fuzz._snapshot, _fuzz.SEED
+Case, _write, _dump, SEED = _fuzz.Case, _fuzz._write, _fuzz._dump, _fuzz.SEED
+
+
+def _snapshot(folder: Path) -> dict[str, bytes | str | None]:
+    """``test_fuzz_inputs._snapshot``, with symbolic links recorded by their target (one points at /dev/zero)."""
+    import os
+
+    links = {str(p.relative_to(folder)): "-> " + os.readlink(p) for p in folder.rglob("*") if p.is_symlink()}
+    return {str(p.relative_to(folder)): links.get(str(p.relative_to(folder)))
+            or (None if p.is_dir() else p.read_bytes()) for p in sorted(folder.rglob("*"))}  # fmt: skip
 
 W, H = 64, 48
 CASES: list[Case] = []
@@ -107,6 +116,11 @@ for _i, _white in enumerate([100, 1000]):  # the frame's DN go up to ~3700
 
 _key_case("black-level-above-every-dn", "black capture",
           lambda d, r: d["polarization"].update(black_level=4094, white_level=4095))
+
+
+for _i, _dist in enumerate([[1e3, 0, 0, 0], [0, 0, 0, 0, 1e6], [-80.0, 0, 0, 0, 0], [0, 0, 50.0, -50.0],
+                            [1e300, 0, 0, 0]]):  # fmt: skip
+    _key_case(f"depth-distortion-{_i}", "depth.distortion", _set("depth", "distortion", _dist))
 
 
 # --------------------------------------------------------------------------- frame and depth files
@@ -218,6 +232,20 @@ def _mesh_escape(doc, rigdir):
 
 
 _key_case("path-escapes-mesh", "../object.ply", _mesh_escape)
+
+
+def _link_to_dev_zero(name: str):
+    def change(doc, rigdir):
+        import os
+
+        (rigdir / name).unlink()
+        os.symlink("/dev/zero", rigdir / name)
+
+    return change
+
+
+_key_case("depth-file-links-to-dev-zero", "depth.png: not a regular file", _link_to_dev_zero("depth.png"))
+_key_case("frame-file-links-to-dev-zero", "frame.png: not a regular file", _link_to_dev_zero("frame.png"))
 
 
 # --------------------------------------------------------------------------- running the cases
