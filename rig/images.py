@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..capture.format import check_not_full
 from ..errors import UserError
 
 #: File types a raw file may have, by suffix (lower case).
@@ -103,8 +104,10 @@ def write_png16(path: Path, img: np.ndarray) -> None:
     import cv2
 
     data = np.clip(np.rint(img), 0, 65535).astype(np.uint16)
-    if not cv2.imwrite(str(path), data):
-        raise UserError(f"{path}: cannot write a PNG there")
+    ok, png = cv2.imencode(".png", data)
+    if not ok:
+        raise UserError(f"{path}: cannot encode a PNG")
+    path.write_bytes(png.tobytes())  # an OSError (a full disk) reaches the caller, which names it
 
 
 def write_exr_depth(path: Path, z: np.ndarray) -> None:
@@ -113,3 +116,4 @@ def write_exr_depth(path: Path, z: np.ndarray) -> None:
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     OpenEXR.File(header, {"Z": np.ascontiguousarray(z, np.float32)}).write(str(path))
+    check_not_full(path)  # OpenEXR reports no failed write

@@ -337,3 +337,23 @@ def test_full_disk_under_rig_export_is_one_line_and_nothing_half_written(tmp_pat
     _, err = capsys.readouterr()
     assert err.startswith(f"nearlight: error: no space left on {tmp_path / 'out' / 'rig'}") and err.count("\n") == 1
     assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_a_truncated_exr_on_a_full_disk_is_refused_too(tmp_path, assets, capsys, monkeypatch):
+    """OpenEXR reports no failed write (a full disk truncates the file silently): a file system with no free
+    block after writing the capture's EXR counts as full."""
+    import os
+    from types import SimpleNamespace
+
+    (tmp_path / "out").mkdir()
+    monkeypatch.setattr(os, "statvfs", lambda p: SimpleNamespace(f_bfree=0))
+    capsys.readouterr()
+    assert main(_import(assets["rig"] / "rig.yaml", tmp_path / "out")) == 2
+    _, err = capsys.readouterr()
+    assert err.startswith(f"nearlight: error: no space left on {tmp_path / 'out' / 'cap'}") and err.count("\n") == 1
+    assert list((tmp_path / "out").iterdir()) == []
+    assert main(["rig", "export", str(assets["capture"]), "--out", str(tmp_path / "out" / "rig"),
+                 "--depth-format", "exr"]) == 2
+    _, err = capsys.readouterr()
+    assert err.startswith(f"nearlight: error: no space left on {tmp_path / 'out' / 'rig'}") and err.count("\n") == 1
+    assert list((tmp_path / "out").iterdir()) == []
