@@ -27,6 +27,13 @@ The steps, in order (``docs/rig-files.md``):
    ``P`` and ``N`` ray-cast from it through each pixel centre
    (:mod:`nearlight.rig.mesh`).
 
+Refused on the way, one line each naming the file and key (``docs/rig-files.md``,
+"What rig import refuses"): frames with NaN, too few bits or DN far above the
+white level, a black capture, distortion that blacks out the image or does not
+invert, and a depth map mirrored relative to the frames
+(:func:`check_depth_silhouette`: the object's silhouette fits the range
+clearly better flipped).
+
 A depth map has no normals: none are written, and the estimator fits them to
 ``P`` (as it does for the generator's range noise). A mesh's normals are
 written as ``N``, and the estimator uses them.
