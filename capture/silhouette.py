@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-#: The luminance range :func:`signal_mask` splits, in decades below the image's maximum (darker is background).
+#: The luminance range :func:`signal_mask` splits, in decades below the image's 99.9th percentile (darker: background).
 SIGNAL_DECADES = 3.0
 #: A flip must give a valid range to at least this fraction of the image's signal pixels to be called a better fit.
 FLIP_MIN_COVER = 0.5
