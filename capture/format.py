@@ -670,6 +670,33 @@ def _vector(x: Any, where: Path, key: str, shape: tuple[int, ...] | None) -> np.
 # --------------------------------------------------------------------------- writing
 
 
+def check_not_full(path: Path) -> None:
+    """Raise ``OSError(ENOSPC)`` when the file system holding ``path`` has no free block left.
+
+    OpenEXR's writer reports no failed write: on a full disk it leaves a
+    truncated file and returns (tried on ``/dev/full``). So after writing one,
+    a file system with no block free (``statvfs``'s ``f_bfree``, the root
+    reserve included) counts as a full disk, and the write as failed.
+    """
+    import errno
+
+    try:
+        full = os.statvfs(path.parent).f_bfree == 0
+    except (OSError, AttributeError):  # no statvfs (Windows): nothing to add to the writer's own errors
+        return
+    if full:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+
+def write_error(path: Path, exc: OSError) -> str:
+    """The one line for an ``OSError`` writing ``path``: ``no space left on <path>`` for a full disk."""
+    import errno
+
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"no space left on {path} (the disk or quota is full; nothing was written)"
+    return f"{path}: cannot write there ({exc.strerror or exc})"
+
+
 def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Write ``capture`` as a capture directory, atomically.
 
@@ -709,7 +736,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
     except OSError as exc:
-        raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None
+        raise UserError(write_error(path, exc)) from None
     old = None
     try:
         (tmp / JSON_NAME).write_text(json.dumps(capture_json(capture), indent=2) + "\n")
@@ -719,6 +746,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
             OpenEXR.set_global_thread_count(os.cpu_count() or 1)
         header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
         OpenEXR.File(header, _channels(capture)).write(str(tmp / EXR_NAME))
+        check_not_full(tmp / EXR_NAME)
         if path.exists() or path.is_symlink():
             # Checked again at the last moment: only a capture is ever replaced. The old
             # capture is moved aside first, so a failure here keeps one of the two whole.
@@ -731,7 +759,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
         shutil.rmtree(tmp, ignore_errors=True)
         if old is not None and not path.exists() and (old / "capture").exists():
             (old / "capture").rename(path)
-        raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None
+        raise UserError(write_error(path, exc)) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         if old is not None and not path.exists() and (old / "capture").exists():

@@ -19,6 +19,7 @@ from ..capture import Capture
 from ..errors import UserError
 from .normals import normals_from_positions
 from .separation import separate_capture
+from ..capture.silhouette import check_silhouette
 from ..physics.camera import camera_rays, project
 from ..physics.reflectance import channel_sum, every_channel, normalize
 
@@ -569,11 +570,13 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = THR
     Raises
     ------
     UserError
-        Shapes that disagree, NaNs at surface pixels, no specular pixel above
+        Shapes that disagree, ``P`` inconsistent with the camera or mirrored
+        relative to the image (:func:`check_silhouette`), NaNs at surface pixels, no specular pixel above
         the threshold, or a peak on the image border.
     """
     P, N, V, cos_r, surface, filled = surface_geometry(capture)
     check_rays(capture)
+    check_silhouette(capture)  # a mirrored range passes check_rays (capture/silhouette.py)
     spec = specular_image(capture, separation=separation)
     filled &= every_channel(np.isfinite(spec))
     located = surface | filled

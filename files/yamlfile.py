@@ -38,7 +38,10 @@ def read_text_file(path: str | os.PathLike, *, what: str) -> str:
             raise UserError(f"{path}: is a folder (expected a {what})")
         if size > MAX_BYTES:
             raise UserError(f"{path}: {size} bytes, too large for a {what} (at most {MAX_BYTES})")
-        data = path.read_bytes()
+        with open(path, "rb") as f:  # at most MAX_BYTES + 1: a device (/dev/zero) or a pipe states no size
+            data = f.read(MAX_BYTES + 1)
+        if len(data) > MAX_BYTES:
+            raise UserError(f"{path}: more than {MAX_BYTES} bytes, too large for a {what} (a device or a stream?)")
     except OSError as exc:
         raise UserError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
     try:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..capture.format import check_not_full
 from ..errors import UserError
 
 #: File types a raw file may have, by suffix (lower case).
@@ -45,17 +46,20 @@ def read_raw(path: Path, *, key: str, rig_file: Path, channels: tuple[int, ...] 
     """
     where = f"{rig_file}: {key}: {path.name}"
     if not path.is_file():
+        if path.exists():
+            raise UserError(f"{where}: not a regular file (a folder or a device)")
         raise UserError(f"{where}: no such file (paths are relative to the rig file's folder)")
     suffix = path.suffix.lower()
     if suffix not in SUFFIXES:
         raise UserError(f"{where}: unknown file type {path.suffix!r} (expected {', '.join(SUFFIXES)})")
     if suffix == ".npy":
         try:
-            img = np.load(path, allow_pickle=False)
+            # mapped, not read: a header stating more data than the file holds is refused, not allocated
+            img = np.load(path, allow_pickle=False, mmap_mode="r")
         except (ValueError, OSError, EOFError) as exc:
             raise UserError(f"{where}: not a readable .npy file ({exc})") from None
-        if img.dtype.kind not in "uif":
-            raise UserError(f"{where}: expected numbers, got dtype {img.dtype}")
+        if not isinstance(img, np.ndarray) or img.dtype.kind not in "uif":
+            raise UserError(f"{where}: expected numbers, got dtype {getattr(img, 'dtype', type(img).__name__)}")
     elif suffix == ".exr":
         img = _read_exr(path, where)
     else:
@@ -66,10 +70,14 @@ def read_raw(path: Path, *, key: str, rig_file: Path, channels: tuple[int, ...] 
             raise UserError(f"{where}: not a readable {suffix[1:].upper()} image")
         if img.ndim == 3 and img.shape[2] == 3:
             img = img[..., ::-1]  # OpenCV's BGR -> RGB
+    if img.ndim == 3 and img.shape[2] == 1:  # one channel with its axis kept (H, W, 1)
+        img = img[..., 0]
     n = 1 if img.ndim == 2 else (img.shape[2] if img.ndim == 3 else -1)
     if n not in channels:
         want = " or ".join(f"{c} channel{'s' if c > 1 else ''}" for c in channels)
         raise UserError(f"{where}: expected an image of {want}, got shape {img.shape}")
+    if min(img.shape[:2]) == 0:
+        raise UserError(f"{where}: an empty image (shape {img.shape})")
     return np.ascontiguousarray(img)
 
 
@@ -96,8 +104,10 @@ def write_png16(path: Path, img: np.ndarray) -> None:
     import cv2
 
     data = np.clip(np.rint(img), 0, 65535).astype(np.uint16)
-    if not cv2.imwrite(str(path), data):
-        raise UserError(f"{path}: cannot write a PNG there")
+    ok, png = cv2.imencode(".png", data)
+    if not ok:
+        raise UserError(f"{path}: cannot encode a PNG")
+    path.write_bytes(png.tobytes())  # an OSError (a full disk) reaches the caller, which names it
 
 
 def write_exr_depth(path: Path, z: np.ndarray) -> None:
@@ -106,3 +116,4 @@ def write_exr_depth(path: Path, z: np.ndarray) -> None:
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     OpenEXR.File(header, {"Z": np.ascontiguousarray(z, np.float32)}).write(str(path))
+    check_not_full(path)  # OpenEXR reports no failed write

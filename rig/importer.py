@@ -27,6 +27,13 @@ The steps, in order (``docs/rig-files.md``):
    ``P`` and ``N`` ray-cast from it through each pixel centre
    (:mod:`nearlight.rig.mesh`).
 
+Refused on the way, one line each naming the file and key (``docs/rig-files.md``,
+"What rig import refuses"): frames with NaN, too few bits or DN far above the
+white level, a black capture, distortion that blacks out the image or does not
+invert, and a depth map mirrored relative to the frames
+(:func:`check_depth_silhouette`: the object's silhouette fits the range
+clearly better flipped).
+
 A depth map has no normals: none are written, and the estimator fits them to
 ``P`` (as it does for the generator's range noise). A mesh's normals are
 written as ``N``, and the estimator uses them.
@@ -48,6 +55,18 @@ from .rigfile import RigFile, load_rig_file
 
 #: A demosaiced pixel counts as saturated when a DN it was interpolated from is within this fraction of white level.
 SATURATED = 0.98
+#: Frames may exceed ``white_level`` by this fraction of the black-to-white span (a sensor's own DN never do).
+DN_SLACK = 0.05
+#: ``camera.distortion`` is refused when undistorting keeps less than this fraction of the pixels with signal.
+DISTORTION_KEEP = 0.5
+#: ``depth.distortion`` is refused when its undistortion, distorted again, misses the pixels by more (median, px).
+DEPTH_DISTORTION_PX = 0.5
+#: ... or when it scales the field (95th percentile of the undistorted points' distance from the principal point
+#: over the pinhole's) outside this range: k1 = 1000 squeezes a 50° depth map to 0.15 of its field; a strong
+#: pincushion (k1 = 0.3) to 0.93 at its corners; a fisheye's barrel spreads it.
+DEPTH_SPREAD = (0.5, 10.0)
+#: Radiance units per full well (``saturation / exposure``) a capture's float32 images hold.
+SCALE_RANGE = (1e-30, 1e30)
 #: When ``cv2.undistortPoints`` stops: 100 iterations, or a step below 1e-12 (normalised image coordinates).
 UNDISTORT_CRITERIA = (3, 100, 1e-12)  # cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS
 #: Mitsuba's camera axes (left, up, forward) from OpenCV's (right, down, forward).
@@ -94,13 +113,27 @@ def rig_capture(rig: RigFile) -> Capture:
     stacks, saturated = [], []
     angles = None
     for i, shot in enumerate(rig.shots):
+        scale = rig.saturation / shot.exposure
+        if not SCALE_RANGE[0] <= scale <= SCALE_RANGE[1]:  # float32 radiance (and the capture's sensor) would not hold it
+            raise UserError(f"{rig.path}: polarization.saturation: {rig.saturation:g} / polarization.shots[{i}].exposure "
+                            f"{shot.exposure:g} = {scale:g} radiance units per full well, outside "
+                            f"{SCALE_RANGE[0]:g} to {SCALE_RANGE[1]:g}")  # fmt: skip
         stack, sat, angles = _shot(rig, i)
-        stacks.append(stack * (rig.saturation / shot.exposure))
+        stacks.append(stack * scale)
         saturated.append(sat)
     stack = _merge(stacks, saturated, [s.exposure for s in rig.shots])
+    _check_not_black(rig, stack, "polarization.black_level, polarization.white_level, polarization.response_gamma")
     if rig.camera.distortion:
+        lit = float((stack > 0).any(axis=(0, -1)).mean())
         stack = np.stack([_undistort(img, rig) for img in stack])
+        after = float((stack > 0).any(axis=(0, -1)).mean()) if np.isfinite(stack).all() else 0.0
+        if after < DISTORTION_KEEP * lit:
+            raise UserError(f"{rig.path}: camera.distortion: undistorting with these coefficients leaves "
+                            f"{100 * after:.0f} % of the image with signal (the frames have {100 * lit:.0f} %): "
+                            "check their order (OpenCV's: k1 k2 p1 p2 [k3 ...]) and their size")  # fmt: skip
     P, N = mesh_geometry(rig) if rig.mesh is not None else (_depth_points(rig), None)
+    if rig.mesh is None:
+        check_depth_silhouette(rig, stack, P)
     cam = rig.camera
     intrinsics = Intrinsics(fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy)
     centred = (np.isclose(cam.fx, cam.fy, rtol=1e-6) and np.isclose(cam.cx, (rig.width - 1) / 2, atol=1e-3)
@@ -132,6 +165,7 @@ def _shot(rig: RigFile, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if rig.mosaic is not None:
         frame = read_raw(shot.files[0], key=key, rig_file=rig.path)
         _check_shape(frame, rig, key, shot.files[0], what=f"a {rig.mosaic} mosaic frame")
+        _check_dn(frame, rig, key, shot.files[0])
         pattern = rig.pattern
         if rig.camera_row0 == "bottom":
             frame, pattern = frame[::-1], -pattern[::-1]
@@ -143,6 +177,7 @@ def _shot(rig: RigFile, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         for f in shot.files:
             img = read_raw(f, key=key, rig_file=rig.path, channels=(1, 3))
             _check_shape(img, rig, key, f, what="an image")
+            _check_dn(img, rig, key, f)
             imgs.append(img[::-1] if rig.camera_row0 == "bottom" else img)
         dn = np.stack([np.broadcast_to(np.asarray(im, float)[..., None], (*im.shape[:2], 3)) if im.ndim == 2
                        else np.asarray(im, float) for im in imgs])  # fmt: skip
@@ -201,10 +236,78 @@ def _undistort(img: np.ndarray, rig: RigFile) -> np.ndarray:
     return np.stack([cv2.undistort(np.ascontiguousarray(img[..., c], np.float32), K, dist) for c in range(3)], axis=-1)
 
 
+def _check_dn(img: np.ndarray, rig: RigFile, key: str, path: Path) -> None:
+    """Refuse frame values no sensor of this rig file records: NaN/Inf, too few bits for the white level, DN far
+    above it (more than :data:`DN_SLACK` of the black-to-white span)."""
+    where = f"{rig.path}: {key}: {path.name}"
+    if img.dtype.kind == "f" and not np.isfinite(img).all():
+        r, c = np.argwhere(~np.isfinite(img).reshape(img.shape[0], img.shape[1], -1).all(axis=-1))[0]
+        raise UserError(f"{where}: NaN or Inf pixel (first at row {r}, column {c}); a frame holds the sensor's DN")
+    if img.dtype.kind in "ui" and rig.white_level > np.iinfo(img.dtype).max:
+        bits = np.iinfo(img.dtype).bits
+        raise UserError(f"{where}: an image of {bits} bits (DN up to {np.iinfo(img.dtype).max}) cannot reach "
+                        f"polarization.white_level {rig.white_level:g}: check the white level or the file")  # fmt: skip
+    top = float(img.max())
+    if top > rig.white_level + DN_SLACK * (rig.white_level - rig.black_level):
+        raise UserError(f"{where}: DN up to {top:g}, far above polarization.white_level {rig.white_level:g} (a sensor "
+                        "records no DN above its full well): check the white level, or the file's bit depth")  # fmt: skip
+
+
+def _check_not_black(rig: RigFile, stack: np.ndarray, keys: str) -> None:
+    """Refuse a capture with no signal at all (every linearised value 0, also once stored as float32)."""
+    if not (np.isfinite(stack) & (stack.astype(np.float32) > 0)).any():
+        files = ", ".join(sorted({f.name for s in rig.shots for f in s.files}))
+        raise UserError(f"{rig.path}: polarization: the frames ({files}) give a black capture: no pixel above "
+                        f"the black level once linearised (check {keys})")  # fmt: skip
+
+
 def _check_shape(img: np.ndarray, rig: RigFile, key: str, path: Path, *, what: str) -> None:
     if img.shape[:2] != (rig.height, rig.width):
         raise UserError(f"{rig.path}: {key}: {path.name}: {what} of {img.shape[0]}x{img.shape[1]} does not match "
                         f"camera.height x camera.width {rig.height}x{rig.width}")  # fmt: skip
+
+
+def check_depth_silhouette(rig: RigFile, stack: np.ndarray, P: np.ndarray) -> None:
+    """Refuse a depth map mirrored relative to the frames: the object's silhouette in the frames (signal) and
+    in the range (valid depth) overlap clearly better with the depth flipped (:func:`nearlight.capture.silhouette.mirrored`;
+    never refused: an object filling the image, a symmetric silhouette, a lit background)."""
+    from ..capture.silhouette import mirrored
+
+    found = mirrored(np.nanmean(stack, axis=(0, -1)), np.isfinite(P).all(axis=-1))
+    if found is not None:
+        flip, best, base = found
+        rows = " (its rows in the other order: flip the file, or set depth.row0)" if flip.startswith("up") else ""
+        raise UserError(f"{rig.path}: depth.file: {rig.depth_file.name}: the depth map is mirrored relative to the "
+                        f"image: flipped {flip}, its valid depth covers the object's silhouette in the frames "
+                        f"({100 * best:.0f} % of the pixels with signal, {100 * base:.0f} % as stored); flip it {flip}{rows}")  # fmt: skip
+
+
+def _check_depth_distortion(rig: RigFile, xy: np.ndarray, pixels: np.ndarray) -> None:
+    """Refuse ``depth.distortion`` that does not invert over the depth map: the undistorted points, distorted
+    again (``cv2.projectPoints``), must land within :data:`DEPTH_DISTORTION_PX` of their pixels (median)."""
+    import cv2
+
+    d = rig.depth
+    with np.errstate(all="ignore"):
+        ok = np.isfinite(xy).all(axis=1)
+        back = np.full_like(pixels, np.nan)
+        if ok.any():
+            obj = np.concatenate([xy[ok], np.ones((int(ok.sum()), 1))], axis=1).reshape(-1, 1, 3)
+            back[ok] = cv2.projectPoints(obj, np.zeros(3), np.zeros(3), d.K, np.asarray(d.distortion, float))[0].reshape(-1, 2)
+        miss = np.linalg.norm(back - pixels, axis=1)
+    med = float(np.median(np.where(np.isfinite(miss), miss, np.inf))) if miss.size else 0.0
+    pinhole = np.hypot((pixels[:, 0] - d.cx) / d.fx, (pixels[:, 1] - d.cy) / d.fy)
+    spread = (float(np.percentile(np.hypot(*xy[ok].T), 95) / max(np.percentile(pinhole[ok], 95), 1e-12))
+              if ok.any() else 0.0)  # fmt: skip
+    if med <= DEPTH_DISTORTION_PX and not DEPTH_SPREAD[0] <= spread <= DEPTH_SPREAD[1]:
+        raise UserError(f"{rig.path}: depth.distortion: undistorting with these coefficients scales the depth map's "
+                        f"field by {spread:.3g} (the 95th percentile of the distance from the principal point; a lens: "
+                        f"{DEPTH_SPREAD[0]:.2g} to {DEPTH_SPREAD[1]:g}): check their order (OpenCV's: k1 k2 p1 p2 "
+                        "[k3 ...]) and their size")  # fmt: skip
+    if not med <= DEPTH_DISTORTION_PX:
+        raise UserError(f"{rig.path}: depth.distortion: these coefficients do not invert over the depth map (its "
+                        f"pixels, undistorted and distorted again, land {med:.3g} px away, median): check their "
+                        "order (OpenCV's: k1 k2 p1 p2 [k3 ...]) and their size")  # fmt: skip
 
 
 def _depth_points(rig: RigFile) -> np.ndarray:
@@ -234,6 +337,7 @@ def _depth_points(rig: RigFile) -> np.ndarray:
         pts = np.stack([u, v], axis=-1).astype(np.float64).reshape(-1, 1, 2)
         # iterated to convergence (OpenCV's default stops after 5 iterations: pixels off under strong distortion)
         xy = cv2.undistortPoints(pts, d.K, np.asarray(d.distortion, float), criteria=UNDISTORT_CRITERIA).reshape(-1, 2)
+        _check_depth_distortion(rig, xy, pts.reshape(-1, 2))
     else:
         xy = np.stack([(u - d.cx) / d.fx, (v - d.cy) / d.fy], axis=-1)
     X = np.concatenate([xy, np.ones((xy.shape[0], 1))], axis=1) * z[v, u][:, None]

@@ -29,6 +29,11 @@ IMX250_PATTERN = ((90.0, 45.0), (135.0, 0.0))
 PATTERNS = {"IMX250": IMX250_PATTERN}
 #: Mosaic kinds: a mono sensor, or a colour one (each 2×2 polarization block one colour, the blocks in an RGGB Bayer).
 MOSAICS = ("mono", "colour")
+#: The response gammas a rig file may state: a camera's response is within these (1: linear, 2.2: sRGB-like);
+#: γ = 1e6 would turn every unsaturated DN into 0 (a black capture), γ = 1e-6 into white.
+GAMMA_RANGE = (0.1, 10.0)
+#: Most ADC bits of ``polarization.sensor.bits``: what the capture reader accepts (``capture.format``).
+MAX_BITS = 32
 _TOP_KEYS = ("format", "camera", "polarization", "depth", "mesh")
 #: Mesh length units (``mesh.units``): metres per unit.
 MESH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
@@ -211,6 +216,9 @@ def load_rig_file(path: str | os.PathLike) -> RigFile:
     black = where.number(pol, "polarization.black_level", 0.0, low=0.0)
     white = where.number(pol, "polarization.white_level", None, low=black, strict=True)
     gamma = where.number(pol, "polarization.response_gamma", 1.0, low=0.0, strict=True)
+    if not GAMMA_RANGE[0] <= gamma <= GAMMA_RANGE[1]:  # beyond, the inverse response makes the capture black or white
+        raise where.fail("polarization.response_gamma", f"a number from {GAMMA_RANGE[0]:g} to {GAMMA_RANGE[1]:g} "
+                         "(a camera's response: 1 linear, 2.2 sRGB-like)", gamma)  # fmt: skip
     saturation = where.number(pol, "polarization.saturation", 1.0, low=0.0, strict=True)
     sensor = pol.get("sensor")
     if sensor is not None:
@@ -220,6 +228,11 @@ def load_rig_file(path: str | os.PathLike) -> RigFile:
         sensor = {"full_well": where.number(sensor, "polarization.sensor.full_well", None, low=0.0, strict=True),
                   "read_noise": where.number(sensor, "polarization.sensor.read_noise", None, low=0.0),
                   "bits": where.int(sensor, "polarization.sensor.bits")}  # fmt: skip
+        if not 1 <= sensor["bits"] <= MAX_BITS:  # the capture reader's range
+            raise where.fail("polarization.sensor.bits", f"an integer from 1 to {MAX_BITS}", sensor["bits"])
+        if white > 2 ** sensor["bits"] - 1:
+            raise UserError(f"{path}: polarization.sensor.bits: {sensor['bits']} bits hold DN up to "
+                            f"{2 ** sensor['bits'] - 1}, below polarization.white_level {white:g}")  # fmt: skip
     if ("depth" in doc) == ("mesh" in doc):
         raise UserError(f"{path}: depth, mesh: expected exactly one (a depth map or the object's mesh), got "
                         f"{'both' if 'depth' in doc else 'neither'}")  # fmt: skip
@@ -385,7 +398,15 @@ class _Where:
             raise UserError(f"{self.path}: {key}: missing")
         if not isinstance(v, str) or not v:
             raise self.fail(key, "a file name", v)
-        return self.path.parent / v
+        return self.inside(key, v)
+
+    def inside(self, key: str, name: str) -> Path:
+        """``name`` in the rig file's folder: an absolute path, or one that climbs out with ``..``, is refused
+        (by its text: a symbolic link inside the folder is followed)."""
+        if "\x00" in name or os.path.isabs(name) or ".." in Path(os.path.normpath(name)).parts:
+            raise UserError(f"{self.path}: {key}: {name!r}: outside the rig file's folder (paths in a rig file are "
+                            "relative to its folder and stay inside it)")  # fmt: skip
+        return self.path.parent / name
 
     def shots(self, v: Any, n_files: int) -> tuple[Shot, ...]:
         key = "polarization.shots"
@@ -404,7 +425,7 @@ class _Where:
                 want = "1 file (a mosaic frame)" if n_files == 1 else f"{n_files} files (one per polarization.angles_deg)"
                 raise UserError(f"{self.path}: {k}.files: {len(files)} files do not match the angles: expected {want}")
             exposure = self.number(shot, f"{k}.exposure", 1.0, low=0.0, strict=True)
-            out.append(Shot(files=tuple(self.path.parent / f for f in files), exposure=exposure))
+            out.append(Shot(files=tuple(self.inside(f"{k}.files", f) for f in files), exposure=exposure))
         return tuple(out)
 
     def row0(self, doc: dict, prefix: str) -> str:
