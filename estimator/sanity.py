@@ -34,7 +34,8 @@ satisfy"):
     The estimate's re-synthesised specular (:func:`~nearlight.estimator.render_specular`,
     the estimator's own forward model) explains at least :data:`EXPLAINED_MIN`
     of the observed highlight: ``1 − Σ(S − Ŝ)² / Σ S²`` over the highlight's
-    pixels and channels. Zero means the estimate predicts no highlight (e.g.
+    pixels and channels, less those with a reading at the sensor's saturation
+    (:func:`clipped`). Zero means the estimate predicts no highlight (e.g.
     Ks ≈ 0), negative one far brighter than observed. With several separate
     highlights, a one-lamp estimate is held to the one it explains best
     (:func:`own_highlight`), for this rule and ``in-front``.
@@ -80,7 +81,7 @@ IN_FRONT_MIN = 0.5
 #: ``explains``: the least fraction of the observed highlight's energy the re-synthesis explains.
 EXPLAINED_MIN = 0.5
 #: ``evident``: the least peak of the observed highlight in noise deviations (:func:`highlight_significance`);
-#: pure noise reaches 2–3, measured values in docs/physics.md, "What an estimate must satisfy".
+#: pure noise reaches 4–5, measured values in docs/physics.md, "What an estimate must satisfy".
 SIGNIFICANCE_MIN = 10.0
 #: ``located``: the largest 1-σ lamp uncertainty over the lamp–highlight distance.
 LOCATED_MAX = 1.0
@@ -175,11 +176,24 @@ def explained_fraction(capture: Capture, est: Estimate, obs: Observation, region
     return float(1.0 - np.sum((observed - predicted[region]) ** 2) / np.sum(observed**2))
 
 
+def clipped(capture: Capture) -> np.ndarray:
+    """Pixels with an analyzer reading at the stated saturation (``sensor.saturation``), shape (H, W), bool.
+
+    All False for a capture with no stack or no stated saturation.
+    """
+    sensor = getattr(capture, "sensor", None)
+    saturation = getattr(sensor, "saturation", None)
+    if capture.stack is None or not saturation:
+        return np.zeros((capture.height, capture.width), bool)
+    return np.any(np.asarray(capture.stack) >= (1 - 1e-6) * float(saturation), axis=(0, 3))
+
+
 def own_highlight(capture: Capture, est: Estimate, obs: Observation, *,
                   predicted: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """The highlight a one-lamp estimate answers for, and the fraction of it that it explains.
 
-    The observation's mask; with several separate highlights
+    The observation's mask less its :func:`clipped` pixels (their specular
+    is cut, so a right estimate predicts more there); with several separate highlights
     (:func:`~nearlight.estimator.highlights.segment_highlights`), the mask's
     part in the one the estimate explains best: a one-lamp method on a
     several-lamp capture answers for one lamp, and is held to that one's
@@ -189,36 +203,42 @@ def own_highlight(capture: Capture, est: Estimate, obs: Observation, *,
     -------
     region : ndarray, shape (H, W), bool
     explained : float
-        :func:`explained_fraction` over ``region``.
+        :func:`explained_fraction` over ``region``; NaN when every pixel of
+        the highlight is clipped (then ``in-front`` and ``explains`` are not checked).
     """
     predicted = render_specular(capture, est) if predicted is None else predicted
+    mask = obs.mask & ~clipped(capture)
     labels = segment_highlights(obs.specular, obs.located).labels
-    regions = [obs.mask & (labels == k) for k in range(1, int(labels.max()) + 1)] if labels.max() > 1 else []
-    candidates = [r for r in regions if r.any()] or [obs.mask]
+    regions = [mask & (labels == k) for k in range(1, int(labels.max()) + 1)] if labels.max() > 1 else []
+    candidates = [r for r in regions if r.any()] or [mask]
+    if not candidates[0].any():  # every highlight pixel clipped: nothing the re-synthesis can be held to
+        return candidates[0], float("nan")
     scored = [(explained_fraction(capture, est, obs, r, predicted=predicted), i) for i, r in enumerate(candidates)]
     explained, best = max(scored)
     return candidates[best], explained
 
 
 def highlight_significance(capture: Capture, obs: Observation) -> float | None:
-    """The observed highlight's peak over its camera noise: the 3 × 3 mean of the specular at the peak pixel,
-    in standard deviations of one pixel's separated specular.
+    """The observed highlight's peak over its camera noise: the largest specular over its standard deviation
+    among the peak pixel and its 8 neighbours (mean over channels).
 
     The camera's noise is stated by the capture's ``sensor`` block or measured
     from its stack (:func:`~nearlight.estimator.noise.camera_noise`); the
     specular's variance is :func:`~nearlight.estimator.noise.specular_variance`'s.
     Pure noise separates into a positive floor (an amplitude, about 1.25
-    deviations, whose 3 × 3 means peak at 2–3 over a few thousand pixels),
-    which a method can fit with a confident lamp (``distant`` on the paper-v1
+    deviations, whose largest over a few thousand pixels reaches 4–5), which
+    a method can fit with a confident lamp (``distant`` on the paper-v1
     cylinder explains 0.77 of it); a highlight stands tens to thousands of
     deviations above it.
 
     Returns
     -------
     float or None
-        Per channel mean; None when the capture says nothing of its noise
-        (no sensor block, and fewer than 4 analyzer angles or a separated
-        specular only).
+        None when the capture says nothing of its noise (no sensor block,
+        and fewer than 4 analyzer angles or a separated specular only); inf
+        when a reading near the peak is clipped at the sensor's saturation
+        (:func:`clipped`: a highlight bright enough to saturate is evident,
+        and its separated specular is cut).
     """
     camera = camera_noise(capture, surface=obs.surface)
     if camera is None:
@@ -227,15 +247,17 @@ def highlight_significance(capture: Capture, obs: Observation) -> float | None:
     window = np.zeros(obs.mask.shape, bool)
     window[max(i - 1, 0) : i + 2, max(j - 1, 0) : j + 2] = True
     window &= obs.located
+    if (window & clipped(capture)).any():
+        return float("inf")
     sd = np.sqrt(specular_variance(capture, obs.specular, camera, pixels=window))
-    return float(np.mean(obs.specular[window].mean(axis=0) / sd.mean(axis=0)))
+    return float(np.max(np.mean(obs.specular[window] / sd, axis=-1)))
 
 
 def _evident(capture: Capture, obs: Observation) -> Failure | None:
     z = highlight_significance(capture, obs)
     if z is not None and not z >= SIGNIFICANCE_MIN:
         return Failure("evident", f"no highlight above the camera noise: its peak is {z:.3g} noise deviations "
-                                  f"(at least {SIGNIFICANCE_MIN:g} needed; noise alone reaches 2–3): the capture "
+                                  f"(at least {SIGNIFICANCE_MIN:g} needed; noise alone reaches 4–5): the capture "
                                   "does not determine the lamp")
     return None
 
@@ -305,9 +327,10 @@ def check(capture: Capture, est: Estimate, obs: Observation, options: Mapping[st
         if len(est.found_lamps()) == 1:
             predicted = render_specular(capture, est)
             region, explained = own_highlight(capture, est, obs, predicted=predicted)
-            for failed in (_in_front(est, obs, region), _explains(est, explained)):
-                if failed is not None:
-                    return failed
+            if region.any():
+                for failed in (_in_front(est, obs, region), _explains(est, explained)):
+                    if failed is not None:
+                        return failed
         return _located(est, obs)
 
 

@@ -141,10 +141,10 @@ def test_every_method_and_origin_runs_on_a_board_with_a_hole(method, options):
     # cases, measured < 0.1 mm here). distant runs: its fit sees the specular pixels with range only, so its
     # lamp moves with the lost pixels (0.4 mm here, against its 0.18-m model error on a near lamp).
     cap = analytic_capture(bsdf=TS, with_normals=False, width=96, height=72)
-    base = estimate(cap, method=method, **options)
-    peak = tuple(base.diagnostics["peak_pixel"])
+    base = estimate(cap, method=method, sanity=False, **options)  # the method's own numbers (distant's board is
+    peak = tuple(base.diagnostics["peak_pixel"])  # refused by the sanity rules: tests/test_estimator_sanity.py)
     holed, _ = _punch(cap, peak, 3)
-    est = estimate(holed, method=method, **options)
+    est = estimate(holed, method=method, sanity=False, **options)
     assert np.all(np.isfinite(est.lamp_position)) and np.isfinite(est.sigma)
     assert tuple(est.diagnostics["peak_pixel"]) == peak
     if "origin" in options:

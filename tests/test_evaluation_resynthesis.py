@@ -84,7 +84,7 @@ def test_resynthesize_agrees_with_the_estimators_render_specular(shape, rng):
                                   light_model={"type": "distant",
                                                "light_direction": _unit(rng.normal(scale=0.2, size=3) + [0, 0.4, 1]),
                                                "view_direction": _unit(rng.normal(scale=0.2, size=3) + [0, -0.6, 1])}))
-    estimates += [estimate(cap, method="distant"), estimate(cap, method="paper-init")]  # as the methods write them
+    estimates += [estimate(cap, method="distant", sanity=False), estimate(cap, method="paper-init")]  # as written
     assert estimates[-2].light_model["type"] == "distant"
     for est in estimates:
         _close(resynthesize(cap, est), render_specular(cap, est))

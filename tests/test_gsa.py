@@ -102,11 +102,12 @@ def test_a_categorical_input_picks_each_label_with_equal_probability():
 # --------------------------------------------------------------------------- through the sweep engine and the CLI
 
 #: A plug-in "estimator" whose lamp-position error is a known linear model of the scene it is shown:
-#: 1 + 4 u_d + 2 u_r + 1 [Ward], u_d and u_r the lamp distance and the roughness scaled to [0, 1]
+#: (1 + 4 u_d + 2 u_r + 1 [Ward]) mm, u_d and u_r the lamp distance and the roughness scaled to [0, 1]
 #: (read from the capture's truth), so the study's indices are closed-form (module docstring).
 PLUGIN = '''
 import numpy as np
-from nearlight.estimator import Estimate
+from nearlight.estimator import Estimate, render_specular
+from nearlight.estimator.observation import observe
 
 
 def fit(capture):
@@ -117,8 +118,12 @@ def fit(capture):
     sigma = bsdf["alpha"] / np.sqrt(2.0) if ward else bsdf["sigma"]
     u_d = (np.linalg.norm(lamp) - 0.2) / 0.4
     u_r = (sigma - 0.05) / 0.2
-    error = 1.0 + 4.0 * u_d + 2.0 * u_r + 1.0 * ward
-    return Estimate(method="gsa_plugin:fit", lamp_position=lamp + [error, 0.0, 0.0], ks=np.ones(3), sigma=0.1)
+    error = 1e-3 * (1.0 + 4.0 * u_d + 2.0 * u_r + 1.0 * ward)  # metres: millimetres, so the estimate stays sane
+    # Ks that re-synthesises the observed specular (least squares per channel), so the sanity rules pass it
+    est = Estimate(method="gsa_plugin:fit", lamp_position=lamp + [error, 0.0, 0.0], ks=np.ones(3), sigma=sigma)
+    unit, seen = render_specular(capture, est), observe(capture).specular
+    est.ks = np.sum(unit * seen, axis=(0, 1)) / np.sum(unit**2, axis=(0, 1))
+    return est
 '''
 
 
@@ -127,7 +132,7 @@ def _study(tmp_path, monkeypatch, design):
     monkeypatch.syspath_prepend(str(tmp_path))
     doc = {
         "name": "linear", "renderer": "analytic",
-        "scene": {"width": 16, "height": 12},  # the board at the origin: lamp distance = |lamp position|
+        "scene": {"width": 40, "height": 30},  # the board at the origin: lamp distance = |lamp position|; >= 10 highlight pixels
         "methods": [{"name": "model", "method": "gsa_plugin:fit"}], "crlb": False,
         "metrics": ["lamp_position_error_m"],
         "inputs": {"lamp_distance": {"low": 0.2, "high": 0.6}, "roughness": {"low": 0.05, "high": 0.25},
@@ -174,8 +179,8 @@ def test_a_morris_study_through_the_engine_gets_the_exact_elementary_effects(tmp
     assert main(["gsa", str(path), "--out", str(tmp_path / "res"), "--quiet"]) == 0
     got = pd.read_csv(tmp_path / "res" / "main" / "gsa" / "indices.csv").set_index("input")
     # a step of 2/3 of the range (4 levels) always flips the coin between its halves: effect 1 / (2/3) = 1.5
-    np.testing.assert_allclose(got.loc[["lamp_distance", "roughness", "bsdf"], "mu_star"], [4.0, 2.0, 1.5], rtol=1e-6)
-    np.testing.assert_allclose(got["sigma"], 0.0, atol=1e-6)
+    np.testing.assert_allclose(got.loc[["lamp_distance", "roughness", "bsdf"], "mu_star"], [4e-3, 2e-3, 1.5e-3], rtol=1e-6)
+    np.testing.assert_allclose(got["sigma"], 0.0, atol=1e-9)
 
 
 @pytest.mark.parametrize(

@@ -18,7 +18,7 @@ from nearlight.evaluation.store import read_results
 from nearlight.evaluation.sweep import load_sweep
 
 # Fake estimators reading the truth (they test the report, not estimation): `off` is the truth moved by
-# (1, 1, 1) cm, an error of sqrt(3) cm; `broken` always fails; `blind` returns no usable lamp (NaN)
+# (1, 1, 1) mm, an error of sqrt(3) mm (1 cm would move the sphere's sharp highlight off its pixels: refused); `broken` always fails; `blind` returns no usable lamp (NaN)
 # for the label that moves the lamp (truth lamp_position[2] == 0.6).
 FAKES = '''
 import numpy as np
@@ -27,7 +27,7 @@ from nearlight.estimator import Estimate
 def off(capture):
     t = capture.truth
     ks = np.asarray(t["bsdf"]["ks"]) * np.asarray(t["lamp_intensity"]) / 2
-    return Estimate(method="off", lamp_position=np.asarray(t["lamp_position"]) + 0.01, ks=ks, sigma=t["bsdf"]["sigma"])
+    return Estimate(method="off", lamp_position=np.asarray(t["lamp_position"]) + 0.001, ks=ks, sigma=t["bsdf"]["sigma"])
 
 def broken(capture):
     raise RuntimeError("fake estimator failed on purpose")
@@ -110,7 +110,7 @@ def fakes(tmp_path_factory):
 
 def test_the_report_of_a_set_sweep_has_the_table_and_the_heatmap(fakes, tmp_path):
     doc = {"name": "one-at-a-time", "renderer": "analytic",
-           "scene": {"width": 24, "height": 18, "lamp_position": [0.05, 0.15, 0.35]},
+           "scene": {"width": 48, "height": 36, "lamp_position": [0.05, 0.15, 0.35]},  # >= 10 highlight pixels on the sphere
            "axes": {"object": ["board", "sphere"],
                     "set": {"none": {}, "dim lamp": {"lamp_intensity": 0.5},
                             "far lamp": {"lamp_position": [0.05, 0.15, 0.6]}},
@@ -129,12 +129,12 @@ def test_the_report_of_a_set_sweep_has_the_table_and_the_heatmap(fakes, tmp_path
     assert list(dict.fromkeys(table["label"])) == ["none", "dim lamp", "far lamp"]
     assert list(dict.fromkeys(table["object"])) == ["board", "sphere"]
     assert (table["n"] == 3).all() and (table["seeds"] == 2).all()  # noise-free once + 2 noisy seeds, pooled
-    # `off` misses by sqrt(3) cm: its percentage of each row's lamp distance, from the rows themselves
+    # `off` misses by sqrt(3) mm: its percentage of each row's lamp distance, from the rows themselves
     df, _ = read_results(out)
     rows = df[df["method"] == f"{fakes}:off"]
     for (obj, label), g in rows.groupby(["object", "set"]):
         cell = table[(table["object"] == obj) & (table["label"] == label) & (table["method"] == f"{fakes}:off")]
-        expect = 100 * math.sqrt(3) * 0.01 / g["lamp_distance_true_m"]
+        expect = 100 * math.sqrt(3) * 0.001 / g["lamp_distance_true_m"]
         assert cell["median"].item() == pytest.approx(np.median(expect), rel=1e-6)
         assert cell["failed"].item() == 0
     # failures are shown, not dropped: broken everywhere, blind only where its truth moved the lamp

@@ -117,10 +117,13 @@ def test_oracle_reaches_full_recall_at_every_threshold(suite, plugins, tmp_path,
 def test_highlight_point_guess_has_no_recall_below_ten_percent(suite, plugins, tmp_path):
     out = tmp_path / "highlight"
     assert _score(suite, out, "nl_score_plugins:highlight") == 0
-    lamp = _card(out)["groups"][0]["lamp_position_error_pct"]
+    card = _card(out)
+    lamp = card["groups"][0]["lamp_position_error_pct"]
     assert lamp["recall"] == [0.0] * 5
-    # the brightest pixel is the highlight point to within a pixel: the error is ~100 % of the distance
-    assert 90 < lamp["median"] < 110
+    # the lamp on the surface (the brightest pixel, ~100 % of the distance off) lights nothing there with Ks 1:
+    # every case refused by the sanity rules, a miss with its reason, not a number
+    assert card["groups"][0]["failed"] == N_CASES
+    assert all(e.startswith("estimate: ") for e in card["errors"])
 
 
 def test_method_gets_no_truth(suite, plugins, tmp_path):
