@@ -25,9 +25,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from ..errors import UserError
+from ..files.schema import validate
 from ..files.yamlfile import load_yaml_mapping
 from ..files.dotted import set_dotted
 from ..physics.reflectance import LOBES
@@ -163,10 +164,6 @@ def _hash(obj: Any) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def _where(path: str, loc: tuple[Any, ...]) -> str:
-    return f"{path}: " + (".".join(str(x) for x in loc) or "<top>")
-
-
 def load_sweep(
     source: str | Path | Mapping[str, Any], *, check_methods: bool = True, profile: str | None = None
 ) -> Sweep:
@@ -200,11 +197,7 @@ def load_sweep(
         p = Path(source)
         path, base_dir = str(p), p.parent
         doc = load_yaml_mapping(p, what="sweep file", keys="name, scene, axes, seeds, methods")
-    try:
-        spec = _SweepFile.model_validate(doc)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        raise UserError(f"{_where(path, err['loc'])}: {err['msg'].removeprefix('Value error, ')}") from None
+    spec = validate(_SweepFile, doc, where=path)
 
     sets, axis_values = _profiled(path, spec, profile)
     renderer = RENDERERS[spec.renderer]()
