@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import json
 import math
 import os
@@ -702,6 +703,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
     """
     import OpenEXR
 
+    from ..files.atomic import cannot_write
     from ..files.outputs import check_capture_out, is_capture_dir
 
     path = check_capture_out(path, overwrite=overwrite)
@@ -709,7 +711,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
     except OSError as exc:
-        raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None
+        raise cannot_write(path, exc) from None
     old = None
     try:
         (tmp / JSON_NAME).write_text(json.dumps(capture_json(capture), indent=2) + "\n")
@@ -718,7 +720,11 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
             # thread per core writes a 640x480 capture in 0.26 s instead of 0.39 s.
             OpenEXR.set_global_thread_count(os.cpu_count() or 1)
         header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-        OpenEXR.File(header, _channels(capture)).write(str(tmp / EXR_NAME))
+        try:
+            OpenEXR.File(header, _channels(capture)).write(str(tmp / EXR_NAME))
+        except RuntimeError as exc:  # OpenEXR's I/O errors (a full disk: "No space left on device")
+            full = "no space left" in str(exc).lower()
+            raise OSError(errno.ENOSPC if full else errno.EIO, " ".join(str(exc).split())) from None
         if path.exists() or path.is_symlink():
             # Checked again at the last moment: only a capture is ever replaced. The old
             # capture is moved aside first, so a failure here keeps one of the two whole.
@@ -731,7 +737,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
         shutil.rmtree(tmp, ignore_errors=True)
         if old is not None and not path.exists() and (old / "capture").exists():
             (old / "capture").rename(path)
-        raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None
+        raise cannot_write(path, exc) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         if old is not None and not path.exists() and (old / "capture").exists():

@@ -24,8 +24,10 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 import traceback
+from concurrent.futures.process import BrokenProcessPool
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -188,7 +190,7 @@ def score_suite(
     """
     from .engine import completed, executing
     from .environment import code_version
-    from .store import ResultStore
+    from .store import ResultStore, set_aside_damaged_parts
 
     options = dict(options or {})
     suite_dir = Path(suite_dir)
@@ -205,21 +207,28 @@ def score_suite(
     axes = list(manifest["cases"][0]["categories"]) if manifest["cases"] else []
     store = ResultStore(out, name=f"score {manifest['suite']} v{manifest['version']} {label}",
                         sweep_hash=_run_hash(manifest, method, options), n_tasks=len(manifest["cases"]), axes=axes)  # fmt: skip
+    for moved in set_aside_damaged_parts(out):  # as a sweep does: a re-run recomputes a damaged row
+        print(f"nearlight: note: a damaged result part was moved to {moved}; its case is scored again", file=sys.stderr)
     done = store.done_ids()
     todo = [c for c in manifest["cases"] if c["id"] not in done]
     version = code_version()
     failed = 0
-    with executing(workers, scheduler) as executor:
-        futs = {executor.submit(score_case, {"folder": str(suite_dir / c["path"])}, method=method, options=options): c
-                for c in todo}  # fmt: skip
-        for fut in completed(executor, futs, desc=f"{manifest['suite']}: {label}", unit="case", progress=progress,
-                             total=len(manifest["cases"]), initial=len(manifest["cases"]) - len(todo)):  # fmt: skip
-            c = futs[fut]
-            row = {"task_id": c["id"], "task_index": manifest["cases"].index(c), "sweep": manifest["suite"],
-                   **c["categories"], "seed": c["seed"], "noisy": c["noisy"], "method": label,
-                   "render_key": c["id"], "renderer": "suite", "code_version": version, **fut.result()}  # fmt: skip
-            store.write_row(row)
-            failed += row["status"] != "ok"
+    try:
+        with executing(workers, scheduler) as executor:
+            futs = {executor.submit(score_case, {"folder": str(suite_dir / c["path"])}, method=method,
+                                    options=options): c for c in todo}  # fmt: skip
+            for fut in completed(executor, futs, desc=f"{manifest['suite']}: {label}", unit="case", progress=progress,
+                                 total=len(manifest["cases"]), initial=len(manifest["cases"]) - len(todo)):  # fmt: skip
+                c = futs[fut]
+                row = {"task_id": c["id"], "task_index": manifest["cases"].index(c), "sweep": manifest["suite"],
+                       **c["categories"], "seed": c["seed"], "noisy": c["noisy"], "method": label,
+                       "render_key": c["id"], "renderer": "suite", "code_version": version, **fut.result()}  # fmt: skip
+                store.write_row(row)
+                failed += row["status"] != "ok"
+    except BrokenProcessPool:  # the method killed its worker (os._exit, a crash in native code, the OOM killer)
+        raise UserError(f"method {method}: a worker process died while running it (killed, or it exited); the "
+                        f"cases scored before are kept in {out}: fix the method, then run the same command "
+                        f"again") from None  # fmt: skip
     df = store.consolidate()
     counts = {"ran": len(todo), "skipped": len(manifest["cases"]) - len(todo), "failed": failed}
     if df is None:

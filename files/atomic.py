@@ -7,6 +7,7 @@ written the same way, a folder at a time (:func:`nearlight.capture.write_capture
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import tempfile
@@ -37,14 +38,44 @@ def atomic_write(path: str | os.PathLike, write: Callable[[str], object], *, suf
         a :class:`~nearlight.errors.UserError` naming ``path`` where the user chose it.
     """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    except OSError as exc:
+        raise (no_space(path) if disk_full(exc) else exc) from None
     os.close(fd)
     try:
         write(tmp)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
+        if disk_full(exc):
+            raise no_space(path) from None
         raise
+
+
+def disk_full(exc: BaseException) -> bool:
+    """Whether ``exc`` says the file system is full (ENOSPC; pyarrow and OpenEXR say it in words only)."""
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    return isinstance(exc, (OSError, RuntimeError)) and "no space left on device" in str(exc).lower()
+
+
+def no_space(path: str | os.PathLike) -> Exception:
+    """The one line for a full disk while writing ``path`` (a :class:`~nearlight.errors.UserError`)."""
+    from ..errors import UserError
+
+    return UserError(f"no space left on {path} (nothing half-written was kept; free some space, then run the "
+                     f"same command again)")  # fmt: skip
+
+
+def cannot_write(path: str | os.PathLike, exc: OSError, what: str = "there") -> Exception:
+    """The one line for an ``OSError`` while writing ``path``: :func:`no_space` for a full disk, else
+    ``"<path>: cannot write <what> (<reason>)"``."""
+    from ..errors import UserError
+
+    if disk_full(exc):
+        return no_space(path)
+    return UserError(f"{path}: cannot write {what} ({exc.strerror or exc})")
 
 
 def write_json(path: str | os.PathLike, doc: object, *, what: str = "there") -> Path:
@@ -55,12 +86,10 @@ def write_json(path: str | os.PathLike, doc: object, *, what: str = "there") -> 
     UserError
         ``path`` cannot be written: ``"<path>: cannot write <what> (<reason>)"``.
     """
-    from ..errors import UserError
-
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(doc, indent=2) + "\n"))
     except OSError as exc:
-        raise UserError(f"{path}: cannot write {what} ({exc.strerror or exc})") from None
+        raise cannot_write(path, exc, what) from None
     return path

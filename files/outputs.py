@@ -171,6 +171,7 @@ KINDS: dict[str, tuple[str, str, Callable[[Path], bool]]] = {
                           _json_with("nearlight_version", "experiments")),
     "reproduction-md": (".md", "a paper reproduction written by `nearlight reproduce`",
                         _text_starting("# Paper reproduction")),
+    "comparison": (".json", "a comparison written by `nearlight compare --json`", _json_with("baseline", "checks")),
     "provenance": (".json", "a provenance record written by nearlight", _json_with("parts")),
     "report-md": (".md", "a sweep report written by `nearlight report`", _text_starting("# Sweep report")),
     # Report tables: a header naming a method column, or pandas' empty table.
