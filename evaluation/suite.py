@@ -599,7 +599,7 @@ def read_manifest_file(path: str | Path) -> dict[str, Any]:
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise UserError(f"{path}: format: expected {FORMAT!r} (a manifest written by nearlight suite build)")
     if doc.get("complete") is False:
-        raise UserError(f"{path}: an interrupted build (complete: false); finish it: nearlight suite build "
+        raise UserError(f"{path}: complete: false, an interrupted build; finish it: nearlight suite build "
                         f"SUITE.yaml --out {path.parent}")  # fmt: skip
     validate(_manifest_models()[0], doc, where=str(path))
     return doc
@@ -622,7 +622,7 @@ def _manifest_models() -> tuple[type, type]:
     class Tolerance(BaseModel):
         model_config = ConfigDict(extra="allow")
         digest_grid: StrictInt = Field(ge=1)
-        digest_rtol: float = Field(ge=0, allow_inf_nan=False)
+        digest_rtol: float = Field(ge=0, allow_inf_nan=False, strict=True)
 
     class CaseEntry(BaseModel):
         model_config = ConfigDict(extra="allow")
