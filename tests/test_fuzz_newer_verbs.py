@@ -561,3 +561,182 @@ def test_case_count():
     ids = [c.id for c in CASES]
     assert len(ids) == len(set(ids)) and len(ids) >= 120
     print(f"\nfuzz layer, newer verbs: {len(ids)} generated broken-input cases (seed {SEED})")
+
+
+# --------------------------------------------------------------------------- faults
+
+
+def _one_error_line(capsys, *needles: str) -> str:
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.startswith("nearlight: error: ")]
+    assert "Traceback" not in err and len(lines) == 1, err
+    assert all(n in lines[0] for n in needles), (needles, lines[0])
+    return lines[0]
+
+
+def _verifies(suite: Path, capsys) -> None:
+    capsys.readouterr()
+    assert main(["suite", "verify", str(suite)]) == 0, capsys.readouterr()
+    capsys.readouterr()
+
+
+#: A lock holder in another process: holds the build lock of argv[1] until killed.
+HOLDER = """
+import sys, time
+from pathlib import Path
+from nearlight.evaluation.suite import build_lock
+out = Path(sys.argv[1]); out.mkdir(parents=True, exist_ok=True)
+with build_lock(out):
+    print("locked", flush=True)
+    time.sleep(120)
+"""
+
+
+def test_two_builds_into_one_folder_at_once_the_second_is_refused(tmp_path, capsys):
+    path, out = _pinned(tmp_path, SUITE), tmp_path / "built"
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(out)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        assert main(_build_argv(path, tmp_path)) == 2
+        _one_error_line(capsys, str(out), "another `nearlight suite build` is writing there")
+        assert sorted(p.name for p in out.iterdir()) == [".build.lock"]  # the second wrote nothing
+    finally:
+        holder.send_signal(signal.SIGKILL)  # a killed build releases its lock (the kernel's flock)
+        holder.wait()
+        holder.stdout.close()
+    assert main(_build_argv(path, tmp_path)) == 0
+    _verifies(out, capsys)
+
+
+def test_a_full_disk_under_suite_build_is_one_line_and_leaves_nothing_half_written(tmp_path, capsys, monkeypatch):
+    """Simulated: the capture writer's EXR step raises ENOSPC (as OpenEXR's own words, a RuntimeError)."""
+    import nearlight.capture.format as fmt
+
+    path, out = _pinned(tmp_path, SUITE), tmp_path / "built"
+    real = fmt._channels
+    calls = []
+
+    def full(*a, **kw):
+        calls.append(1)
+        if len(calls) >= 3:  # the first case's input and truth fit, then the disk is full
+            raise RuntimeError('Failed to write pixel data to image file "x.exr". No space left on device.')
+        return real(*a, **kw)
+
+    monkeypatch.setattr(fmt, "_channels", full)
+    assert main(_build_argv(path, tmp_path)) == 2
+    _one_error_line(capsys, "no space left on", str(out / "cases" / "001" / "input"))
+    assert not [p for p in out.rglob("*") if ".partial" in p.name or ".old" in p.name]
+    assert not (out / "cases" / "001" / "input").exists()  # no half-written case
+    assert json.loads((out / "manifest.json").read_text())["complete"] is False  # resumable
+    monkeypatch.setattr(fmt, "_channels", real)
+    assert main(_build_argv(path, tmp_path)) == 0
+    assert "built 1 case(s), kept 1 already built" in capsys.readouterr().err
+    _verifies(out, capsys)
+
+
+def test_a_real_full_disk_on_a_small_tmpfs(tmp_path, capsys):
+    """The same on a 48 kB tmpfs (root only; skipped where ``mount -t tmpfs`` is not allowed)."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=48k", "tmpfs", str(disk)], capture_output=True).returncode:
+        pytest.skip("mount -t tmpfs is not allowed here")
+    try:
+        assert main(["suite", "build", str(_pinned(tmp_path, SUITE)), "--out", str(disk / "s"), "--quiet",
+                     "--no-cache"]) == 2  # fmt: skip
+        _one_error_line(capsys, "no space left on", str(disk / "s"))
+        assert not [p for p in disk.rglob("*") if ".partial" in p.name]
+        for c in (disk / "s" / "cases").iterdir():  # every case folder is whole or empty
+            assert sorted(p.name for p in c.iterdir()) in ([], ["input", "truth"]), c
+    finally:
+        subprocess.run(["umount", str(disk)], check=True)
+
+
+def test_a_full_disk_under_score_is_one_line(tmp_path, assets, capsys, monkeypatch):
+    import pandas as pd
+
+    def full(self, path, *a, **kw):
+        raise OSError(28, "No space left on device")  # pyarrow's ENOSPC, as an OSError
+
+    monkeypatch.setattr(pd.DataFrame, "to_parquet", full)
+    assert main(_score_argv(assets["suite"], tmp_path / "score")) == 2
+    _one_error_line(capsys, "no space left on", str(tmp_path / "score" / "parts"))
+    assert not list((tmp_path / "score").rglob("*.partial")) and not list((tmp_path / "score" / "parts").iterdir())
+
+
+def test_a_killed_build_resumes_into_a_suite_that_verifies(tmp_path, capsys):
+    """What SIGKILL leaves (a scratch folder of a capture write, a case half-written) is cleaned on resume,
+    never checksummed; and a build really killed with SIGKILL resumes too."""
+    path, out = _pinned(tmp_path, SUITE), tmp_path / "built"
+    assert main(_build_argv(path, tmp_path)) == 0
+    case = out / "cases" / "001"
+    shutil.rmtree(case / "truth")  # the kill came between the case's two captures ...
+    scratch = case / ".truth.x1y2z3.partial"  # ... while the truth was being written
+    _write(scratch / "capture.json", "{}")
+    doc = json.loads((out / "manifest.json").read_text())
+    doc["complete"] = False
+    (out / "manifest.json").write_text(json.dumps(doc))
+    assert main(_build_argv(path, tmp_path)) == 0
+    assert "built 1 case(s), kept 1 already built" in capsys.readouterr().err
+    assert not scratch.exists()
+    files = [f for c in json.loads((out / "manifest.json").read_text())["cases"] for f in c["files"]]
+    assert not [f for f in files if "partial" in f] and len(files) == 8
+    _verifies(out, capsys)
+
+    # a real SIGKILL in the middle of a larger build, then the same command again
+    big = _pinned(tmp_path, {**SUITE, "name": "big-v1", "scene": {"width": 160, "height": 120},
+                             "axes": {"lamp_distance": [round(0.2 + 0.025 * k, 3) for k in range(16)]}}, "big.yaml")  # fmt: skip
+    out2 = tmp_path / "big"
+    argv = ["suite", "build", str(big), "--out", str(out2), "--quiet", "--no-cache"]
+    proc = subprocess.Popen([sys.executable, "-m", "nearlight", *argv], stderr=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not (out2 / "cases" / "001").exists() and proc.poll() is None:
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGKILL)
+    assert proc.wait() == -signal.SIGKILL and not json.loads((out2 / "manifest.json").read_text())["complete"]
+    assert main(argv) == 0, capsys.readouterr().err
+    assert "kept" in capsys.readouterr().err
+    _verifies(out2, capsys)
+
+
+#: Plug-ins for the faults of a method under `score`.
+FAULTY = """
+import os, sys
+def exits(capture):
+    sys.exit(0)
+def dies(capture):
+    os._exit(1)
+"""
+
+
+@pytest.fixture
+def faulty(tmp_path, monkeypatch):
+    _write(tmp_path / "plugins" / "nl_faulty_plugin.py", textwrap.dedent(FAULTY))
+    monkeypatch.syspath_prepend(str(tmp_path / "plugins"))
+    return "nl_faulty_plugin"
+
+
+def test_sys_exit_in_a_plugin_under_score_is_a_failed_case_not_an_exit(tmp_path, assets, faulty, capsys):
+    assert main(_score_argv(assets["suite"], tmp_path / "score", f"{faulty}:exits")) == 0
+    card = json.loads((tmp_path / "score" / "scorecard.json").read_text())
+    assert card["failed"] == card["cases"] == 2
+    assert any(f"method {faulty}:exits: failed with SystemExit" in e for e in card["errors"]), card["errors"]
+
+
+def test_a_plugin_that_kills_its_worker_is_one_line_naming_it(tmp_path, assets, faulty, capsys):
+    assert main([*_score_argv(assets["suite"], tmp_path / "score", f"{faulty}:dies"), "--workers", "2"]) == 2
+    _one_error_line(capsys, f"method {faulty}:dies: a worker process died")
+
+
+def test_a_damaged_score_part_is_set_aside_and_scored_again(tmp_path, assets, capsys):
+    score = tmp_path / "score"
+    shutil.copytree(assets["score"], score)
+    (score / "results.parquet").unlink()
+    part = sorted((score / "parts").glob("*.parquet"))[0]
+    part.write_bytes(b"garbage")
+    capsys.readouterr()
+    assert main(["report", str(score)]) == 2  # a reader names the part and what to do
+    _one_error_line(capsys, str(part), "delete it, or run the same `nearlight sweep` or `nearlight score` again")
+    assert main(_score_argv(assets["suite"], score)) == 0  # and doing it works
+    err = capsys.readouterr().err
+    assert "a damaged result part was moved to" in err and "ran 1 case(s), skipped 1" in err
+    assert (score / "parts" / "damaged" / part.name).read_bytes() == b"garbage"
