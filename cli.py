@@ -89,7 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"nearlight: error: {exc}", file=sys.stderr)
         return UserError.exit_code
     except OSError as exc:  # a full disk where no writer named the file: still one line, not a traceback
-        from .files.atomic import disk_full, no_space
+        from .errors import disk_full, no_space
 
         if not disk_full(exc):
             raise

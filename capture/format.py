@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import UserError, disk_full
 from ..files.jsonable import jsonable
 from ..physics.reflectance import every_channel
 
@@ -723,8 +723,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
         try:
             OpenEXR.File(header, _channels(capture)).write(str(tmp / EXR_NAME))
         except RuntimeError as exc:  # OpenEXR's I/O errors (a full disk: "No space left on device")
-            full = "no space left" in str(exc).lower()
-            raise OSError(errno.ENOSPC if full else errno.EIO, " ".join(str(exc).split())) from None
+            raise OSError(errno.ENOSPC if disk_full(exc) else errno.EIO, " ".join(str(exc).split())) from None
         if path.exists() or path.is_symlink():
             # Checked again at the last moment: only a capture is ever replaced. The old
             # capture is moved aside first, so a failure here keeps one of the two whole.

@@ -7,7 +7,6 @@ written the same way, a folder at a time (:func:`nearlight.capture.write_capture
 
 from __future__ import annotations
 
-import errno
 import json
 import os
 import tempfile
@@ -37,6 +36,8 @@ def atomic_write(path: str | os.PathLike, write: Callable[[str], object], *, suf
         From creating, writing or renaming the file; the caller turns it into
         a :class:`~nearlight.errors.UserError` naming ``path`` where the user chose it.
     """
+    from ..errors import disk_full, no_space
+
     path = Path(path)
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
@@ -53,25 +54,10 @@ def atomic_write(path: str | os.PathLike, write: Callable[[str], object], *, suf
         raise
 
 
-def disk_full(exc: BaseException) -> bool:
-    """Whether ``exc`` says the file system is full (ENOSPC; pyarrow and OpenEXR say it in words only)."""
-    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
-        return True
-    return isinstance(exc, (OSError, RuntimeError)) and "no space left on device" in str(exc).lower()
-
-
-def no_space(path: str | os.PathLike) -> Exception:
-    """The one line for a full disk while writing ``path`` (a :class:`~nearlight.errors.UserError`)."""
-    from ..errors import UserError
-
-    return UserError(f"no space left on {path} (nothing half-written was kept; free some space, then run the "
-                     f"same command again)")  # fmt: skip
-
-
 def cannot_write(path: str | os.PathLike, exc: OSError, what: str = "there") -> Exception:
     """The one line for an ``OSError`` while writing ``path``: :func:`no_space` for a full disk, else
     ``"<path>: cannot write <what> (<reason>)"``."""
-    from ..errors import UserError
+    from ..errors import UserError, disk_full, no_space
 
     if disk_full(exc):
         return no_space(path)
