@@ -134,28 +134,9 @@ def check_score_out(out: str | Path, manifest: Mapping[str, Any], method: str, o
         old = read_run_manifest(out)
         if old.get("sweep_hash") != _run_hash(manifest, method, options):
             raise UserError(f"{out}: holds another run ({old.get('name')!r}); choose another --out or remove it")
-    check_file_out(out / SCORECARD_PNG, "png")
-    for name, ok in ((SCORECARD_JSON, _is_scorecard_json), (SCORECARD_MD, _is_scorecard_md)):
-        p = out / name
-        if (p.exists() or p.is_symlink()) and (p.is_symlink() or not p.is_file() or not ok(p)):
-            raise UserError(f"{p}: exists and is not a scorecard written by nearlight score; choose another --out")
+    for name, kind in ((SCORECARD_PNG, "png"), (SCORECARD_JSON, "scorecard-json"), (SCORECARD_MD, "scorecard-md")):
+        check_file_out(out / name, kind)  # files.outputs.KINDS: how nearlight knows its own scorecard files
     return out
-
-
-def _is_scorecard_json(p: Path) -> bool:
-    try:
-        doc = json.loads(p.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return False
-    return isinstance(doc, dict) and doc.get("format") == FORMAT
-
-
-def _is_scorecard_md(p: Path) -> bool:
-    try:
-        with open(p, "rb") as f:
-            return f.read(len(MD_TITLE)).decode("utf-8", errors="replace") == MD_TITLE
-    except OSError:
-        return False
 
 
 def score_suite(

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import UserError
+from .sweep import stable_hash  # noqa: F401  (one hash for task ids, sweeps, suites and cases; re-exported)
 
 #: The manifest's ``format``.
 FORMAT = "nearlight-suite/1"
@@ -132,11 +133,6 @@ class Suite:
     def render_keys(self) -> list[str]:
         """Distinct physical configurations over all parts, in case order."""
         return list(dict.fromkeys(c.task.render_key for c in self.cases))
-
-
-def stable_hash(obj: Any) -> str:
-    """A 16-hex-digit sha256 of ``obj`` as sorted JSON: the same on every machine."""
-    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 def load_suite(path: str | Path, *, check_pin: bool = True) -> Suite:
