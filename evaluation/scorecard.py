@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import UserError
-from .metrics import INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
+from .metrics import ESTIMATE_COLUMNS, INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
 from .suite import INPUT, TRUTH, checksum_problems, read_manifest, strip_truth
 
 #: Metric -> (thresholds, as the metric's values; label of a threshold). The lamp: % of the distance from
@@ -182,6 +182,7 @@ def score_suite(
     if problems:
         more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
         raise UserError(problems[0] + more + "; rebuild or re-download the suite")
+    _check_category_names(suite_dir, manifest)
     t_start = time.perf_counter()
     label = method_label(method, options)
     cats = list(manifest["categories"])
@@ -226,6 +227,22 @@ def score_suite(
                entry_modules=[__name__])  # fmt: skip
     write_scorecard(card, out)
     return card, counts
+
+
+#: Columns of a score row that are not the case's categories (a category of the same name would replace them).
+ROW_COLUMNS = ("task_id", "task_index", "sweep", "seed", "noisy", "method", "render_key", "renderer", "code_version",
+               "status", "error", "runtime_s", LOBE_COLUMN, *METRICS, *INFO_COLUMNS, *ESTIMATE_COLUMNS)  # fmt: skip
+
+
+def _check_category_names(suite_dir: Path, manifest: Mapping[str, Any]) -> None:
+    """A (hand-edited) manifest's category named like a row column (``task_id``: the row's file name) is refused."""
+    from .suite import MANIFEST
+
+    for i, c in enumerate(manifest["cases"]):
+        clash = sorted(set(c["categories"]) & set(ROW_COLUMNS))
+        if clash:
+            raise UserError(f"{suite_dir / MANIFEST}: cases.{i}.categories.{clash[0]}: a category cannot be named like "
+                            f"a column of the score's rows ({', '.join(ROW_COLUMNS[:12])}, the metrics, ...)")  # fmt: skip
 
 
 def median_ci(x: np.ndarray, *, level: float = 0.95) -> tuple[float, float, float]:

@@ -215,6 +215,14 @@ def _manifest_cases() -> None:
                 path.write_bytes(damage(path.read_bytes()))
                 return _verbs(suite, folder, assets)[verb], str(path)
 
+    for n, (name, value) in enumerate([("task_id", "../../victim/important"), ("status", "ok"), ("method", "x"),
+                                       ("lamp_position_error_pct", 0.0)]):  # fmt: skip
+        @case(f"manifest-category-named-like-a-row-column-{name}")
+        def build(folder, assets, name=name, value=value):
+            suite = _broken_suite(folder, assets, f"cases.0.categories.{name}", value)
+            _write(folder / "victim" / "important.parquet", "my data")
+            return _verbs(suite, folder, assets)["score"], f"manifest.json: cases.0.categories.{name}"
+
     for verb in ("verify", "score"):
         @case(f"manifest-duplicate-id-{verb}")
         def build(folder, assets, verb=verb):
