@@ -27,7 +27,6 @@ import math
 import sys
 import time
 import traceback
-from concurrent.futures.process import BrokenProcessPool
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -195,22 +194,17 @@ def score_suite(
     todo = [c for c in manifest["cases"] if c["id"] not in done]
     version = code_version()
     failed = 0
-    try:
-        with executing(workers, scheduler) as executor:
-            futs = {executor.submit(score_case, {"folder": str(suite_dir / c["path"])}, method=method,
-                                    options=options): c for c in todo}  # fmt: skip
-            for fut in completed(executor, futs, desc=f"{manifest['suite']}: {label}", unit="case", progress=progress,
-                                 total=len(manifest["cases"]), initial=len(manifest["cases"]) - len(todo)):  # fmt: skip
-                c = futs[fut]
-                row = {"task_id": c["id"], "task_index": manifest["cases"].index(c), "sweep": manifest["suite"],
-                       **c["categories"], "seed": c["seed"], "noisy": c["noisy"], "method": label,
-                       "render_key": c["id"], "renderer": "suite", "code_version": version, **fut.result()}  # fmt: skip
-                store.write_row(row)
-                failed += row["status"] != "ok"
-    except BrokenProcessPool:  # the method killed its worker (os._exit, a crash in native code, the OOM killer)
-        raise UserError(f"method {method}: a worker process died while running it (killed, or it exited); the "
-                        f"cases scored before are kept in {out}: fix the method, then run the same command "
-                        f"again") from None  # fmt: skip
+    with executing(workers, scheduler, running=f"method {method}") as executor:
+        futs = {executor.submit(score_case, {"folder": str(suite_dir / c["path"])}, method=method,
+                                options=options): c for c in todo}  # fmt: skip
+        for fut in completed(executor, futs, desc=f"{manifest['suite']}: {label}", unit="case", progress=progress,
+                             total=len(manifest["cases"]), initial=len(manifest["cases"]) - len(todo)):  # fmt: skip
+            c = futs[fut]
+            row = {"task_id": c["id"], "task_index": manifest["cases"].index(c), "sweep": manifest["suite"],
+                   **c["categories"], "seed": c["seed"], "noisy": c["noisy"], "method": label,
+                   "render_key": c["id"], "renderer": "suite", "code_version": version, **fut.result()}  # fmt: skip
+            store.write_row(row)
+            failed += row["status"] != "ok"
     df = store.consolidate()
     counts = {"ran": len(todo), "skipped": len(manifest["cases"]) - len(todo), "failed": failed}
     if df is None:

@@ -498,7 +498,7 @@ def _build_locked(suite: Suite, out: Path, *, workers: int, scheduler: Any, prog
     todo = [c for c in suite.cases if not _case_done(out / c.path)]
     rendered = 0
     records: dict[str, dict] = {}
-    with executing(workers, scheduler) as executor:
+    with executing(workers, scheduler, running=f"suite build {suite.name}") as executor:
         keys = list(dict.fromkeys(c.task.render_key for c in todo)) if renderer.prerender and cache else []
         if keys:
             scenes = {c.task.render_key: c.task.scene for c in todo}

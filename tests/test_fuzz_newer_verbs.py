@@ -748,3 +748,10 @@ def test_a_damaged_score_part_is_set_aside_and_scored_again(tmp_path, assets, ca
     err = capsys.readouterr().err
     assert "a damaged result part was moved to" in err and "ran 1 case(s), skipped 1" in err
     assert (score / "parts" / "damaged" / part.name).read_bytes() == b"garbage"
+
+
+def test_a_plugin_that_kills_its_worker_under_gsa_is_one_line(tmp_path, faulty, capsys):
+    doc = {**GSA, "methods": [f"{faulty}:dies"]}
+    path = _write(tmp_path / "gsa.yaml", _dump(doc))
+    assert main(["gsa", str(path), "--out", str(tmp_path / "res"), "--quiet", "--workers", "2"]) == 2
+    _one_error_line(capsys, f"{faulty}:dies", "a worker process died")
