@@ -88,6 +88,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UserError as exc:
         print(f"nearlight: error: {exc}", file=sys.stderr)
         return UserError.exit_code
+    except OSError as exc:  # a full disk where no writer named the file: still one line, not a traceback
+        from .errors import disk_full, no_space
+
+        if not disk_full(exc):
+            raise
+        print(f"nearlight: error: {no_space(exc.filename or 'the output file system')}", file=sys.stderr)
+        return UserError.exit_code
     except KeyboardInterrupt:
         print("nearlight: interrupted", file=sys.stderr)
         return 130

@@ -64,3 +64,18 @@ def require_extra(extra: str) -> None:
             found = False
         if not found:
             raise MissingExtra(extra)
+
+
+def disk_full(exc: BaseException) -> bool:
+    """Whether ``exc`` says the file system is full (ENOSPC, EDQUOT; pyarrow and OpenEXR say it in words only)."""
+    import errno
+
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    return isinstance(exc, (OSError, RuntimeError)) and "no space left on device" in str(exc).lower()
+
+
+def no_space(path: object) -> UserError:
+    """The one line for a full disk while writing ``path``: ``no space left on <path> (...)``."""
+    return UserError(f"no space left on {path} (nothing half-written was kept; free some space, then run the "
+                     f"same command again)")

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import json
 import math
 import os
@@ -29,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import UserError, disk_full
 from ..files.jsonable import jsonable
 from ..physics.reflectance import every_channel
 
@@ -670,33 +671,6 @@ def _vector(x: Any, where: Path, key: str, shape: tuple[int, ...] | None) -> np.
 # --------------------------------------------------------------------------- writing
 
 
-def check_not_full(path: Path) -> None:
-    """Raise ``OSError(ENOSPC)`` when the file system holding ``path`` has no free block left.
-
-    OpenEXR's writer reports no failed write: on a full disk it leaves a
-    truncated file and returns (tried on ``/dev/full``). So after writing one,
-    a file system with no block free (``statvfs``'s ``f_bfree``, the root
-    reserve included) counts as a full disk, and the write as failed.
-    """
-    import errno
-
-    try:
-        full = os.statvfs(path.parent).f_bfree == 0
-    except (OSError, AttributeError):  # no statvfs (Windows): nothing to add to the writer's own errors
-        return
-    if full:
-        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
-
-
-def write_error(path: Path, exc: OSError) -> str:
-    """The one line for an ``OSError`` writing ``path``: ``no space left on <path>`` for a full disk."""
-    import errno
-
-    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-        return f"no space left on {path} (the disk or quota is full; nothing was written)"
-    return f"{path}: cannot write there ({exc.strerror or exc})"
-
-
 def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Write ``capture`` as a capture directory, atomically.
 
@@ -729,6 +703,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
     """
     import OpenEXR
 
+    from ..files.atomic import cannot_write, check_not_full
     from ..files.outputs import check_capture_out, is_capture_dir
 
     path = check_capture_out(path, overwrite=overwrite)
@@ -736,7 +711,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
     except OSError as exc:
-        raise UserError(write_error(path, exc)) from None
+        raise cannot_write(path, exc) from None
     old = None
     try:
         (tmp / JSON_NAME).write_text(json.dumps(capture_json(capture), indent=2) + "\n")
@@ -745,7 +720,10 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
             # thread per core writes a 640x480 capture in 0.26 s instead of 0.39 s.
             OpenEXR.set_global_thread_count(os.cpu_count() or 1)
         header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-        OpenEXR.File(header, _channels(capture)).write(str(tmp / EXR_NAME))
+        try:
+            OpenEXR.File(header, _channels(capture)).write(str(tmp / EXR_NAME))
+        except RuntimeError as exc:  # OpenEXR's I/O errors (a full disk: "No space left on device")
+            raise OSError(errno.ENOSPC if disk_full(exc) else errno.EIO, " ".join(str(exc).split())) from None
         check_not_full(tmp / EXR_NAME)
         if path.exists() or path.is_symlink():
             # Checked again at the last moment: only a capture is ever replaced. The old
@@ -759,7 +737,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
         shutil.rmtree(tmp, ignore_errors=True)
         if old is not None and not path.exists() and (old / "capture").exists():
             (old / "capture").rename(path)
-        raise UserError(write_error(path, exc)) from None
+        raise cannot_write(path, exc) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         if old is not None and not path.exists() and (old / "capture").exists():

@@ -54,6 +54,12 @@ def load_method(spec: str) -> Callable[..., Estimate]:
         module = importlib.import_module(module_name)
     except ImportError as exc:
         raise UserError(f"method {spec}: cannot import module {module_name!r} ({exc})") from None
+    except (Exception, SystemExit) as exc:  # a plug-in's own code failed at import (SyntaxError, sys.exit, ...)
+        if module_name.split(".")[0] == "nearlight":  # nearlight's own method (EXTRA_METHODS): a bug, keep it
+            raise
+        where = f" at {exc.filename}:{exc.lineno}" if isinstance(exc, SyntaxError) else ""
+        raise UserError(f"method {spec}: importing module {module_name!r} failed with {type(exc).__name__}{where}: "
+                        f"{' '.join(str(exc).split())[:200]}") from None  # fmt: skip
     fn = getattr(module, func_name, None)
     if not callable(fn):
         raise UserError(f"method {spec}: module {module_name!r} has no function {func_name!r}")
@@ -109,7 +115,7 @@ def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", san
             result = fn(capture, **options)
         except UserError:
             raise
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:  # sys.exit() in a plug-in is its failure, not nearlight's exit
             raise UserError(
                 f"method {method}: failed with {type(exc).__name__}: {' '.join(str(exc).split())[:200]} "
                 "(a plug-in is fn(capture, **options) -> nearlight.estimator.Estimate)"

@@ -165,7 +165,7 @@ def _gsa(args: argparse.Namespace) -> int:
     from ..files.yamlfile import parse_setting
     from .engine import check_resumable, run_sweep
     from .gsa import load_study
-    from .gsa_report import write_gsa_report
+    from .gsa_report import check_report_out, write_gsa_report
 
     check_executor(args)
     settings = dict(parse_setting(item, example="designs.screening.n=2") for item in args.set)
@@ -175,6 +175,7 @@ def _gsa(args: argparse.Namespace) -> int:
         if run.sweep.renderer.extra is not None:
             require_extra(run.sweep.renderer.extra)
         check_resumable(Path(args.out) / run.design.name, run.sweep)  # every design before anything runs
+        check_report_out(study, run, Path(args.out) / run.design.name)  # and where its report goes
     cache = results_cache(args)
     where = f"Dask scheduler {args.scheduler}" if args.scheduler else f"{args.workers} local worker(s)"
     status = 0

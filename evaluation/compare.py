@@ -322,12 +322,20 @@ def compare_dirs(
     lines : list of str
         What to print: notes, environment differences, every check, a summary.
     """
+    from ..files.outputs import check_file_out
+
+    if json_out is not None:  # before any work: a file nearlight did not write is never replaced
+        check_file_out(json_out, "comparison", flag="--json")
     new_dir, base_dir = Path(new_dir), Path(base_dir)
     new, new_complete = read_results(new_dir)
     base, _ = read_results(base_dir)
     mn, mb = read_manifest(new_dir), read_manifest(base_dir)
     axes = mb.get("axes")
     lines = []
+    if _is_score(new) != _is_score(base):
+        score_dir, sweep_dir = (new_dir, base_dir) if _is_score(new) else (base_dir, new_dir)
+        raise UserError(f"{sweep_dir}: a sweep's results, and {score_dir} a scorecard's (`nearlight score`); "
+                        f"compare like with like: two sweeps, or two score folders")  # fmt: skip
     if _is_score(new) and _is_score(base):
         new, base, axes, note = _as_scores(new, base, axes)
         lines.append(note)

@@ -272,11 +272,22 @@ def make_executor(workers: int, scheduler: Any) -> Any:
 
 
 @contextlib.contextmanager
-def executing(workers: int, scheduler: Any) -> Iterator[Any]:
-    """:func:`make_executor` for a ``with`` block: aborted when the block is interrupted, else closed."""
+def executing(workers: int, scheduler: Any, *, running: str = "a task") -> Iterator[Any]:
+    """:func:`make_executor` for a ``with`` block: aborted when the block is interrupted, else closed.
+
+    A local worker process that dies (killed, out of memory, a plug-in's ``os._exit``) is one
+    :class:`UserError` line saying what it was running (``running``: e.g. ``"method mod:fn"``); what was
+    written before stays, and the same command resumes.
+    """
+    from concurrent.futures.process import BrokenProcessPool
+
     executor = make_executor(workers, scheduler)
     try:
         yield executor
+    except BrokenProcessPool:
+        executor.abort()
+        raise UserError(f"{running}: a worker process died while running it (killed, or it exited); what was "
+                        f"finished before is kept: fix the cause, then run the same command again") from None  # fmt: skip
     except BaseException:
         executor.abort()
         raise
@@ -369,7 +380,8 @@ def run_sweep(
     renderer = sweep.renderer
     rendered = failed = 0
     render_errors: dict[str, str] = {}
-    with executing(workers, scheduler) as executor:
+    running = f"sweep {sweep.name} (methods {', '.join(m.label for m in sweep.methods)})"
+    with executing(workers, scheduler, running=running) as executor:
         keys = list(dict.fromkeys(t.render_key for t in todo)) if renderer.prerender and cache_dir else []
         if keys:
             scenes = {t.render_key: t.scene for t in todo}

@@ -43,9 +43,10 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from ..errors import UserError
+from ..files.schema import validate
 from ..files.yamlfile import load_yaml_mapping
 from .sweep import Sweep, _SweepFile, load_sweep
 from .sweep import _label as axis_label  # one home for how an axis value labels itself
@@ -407,12 +408,7 @@ def load_study(source: str | Path, *, settings: Mapping[str, Any] = (), design: 
     doc = load_yaml_mapping(p, what="GSA file", keys="name, scene, inputs, designs, methods")
     for key, value in dict(settings).items():
         set_dotted(doc, key, value, where=f"--set {key}")
-    try:
-        spec = _GSAFile.model_validate(doc)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(x) for x in err["loc"]) or "<top>"
-        raise UserError(f"{path}: {loc}: {err['msg'].removeprefix('Value error, ')}") from None
+    spec = validate(_GSAFile, doc, where=path)
     inputs = _inputs(path, spec)
     from .metrics import ESTIMATE_COLUMNS, METRICS
 

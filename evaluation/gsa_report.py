@@ -151,6 +151,17 @@ def plot_scatter(table: pd.DataFrame, inputs: list[Input], metric: str, method: 
     return save_png(fig, path, dpi=100)
 
 
+def check_report_out(study: Study, run: DesignRun, results_dir: str | Path) -> Path:
+    """Raise :class:`UserError` unless the report of ``run`` may be written into ``results_dir/gsa/``
+    (every file there that it would replace is one nearlight wrote); nothing is written. ``nearlight gsa``
+    calls it for every design before any runs."""
+    folder = Path(results_dir) / FOLDER
+    pngs = {f"indices_{m}.png": "png" for m in study.metrics}
+    pngs |= {f"scatter_{_safe(m.label)}.png": "png" for m in run.sweep.methods}
+    check_files_in(folder, {"indices.csv": "report-csv", "outputs.csv": "report-csv", "gsa.md": "report-md", **pngs})
+    return folder
+
+
 def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, command: str) -> Path:
     """Write the report of one design into ``results_dir/gsa/`` and record its provenance.
 
@@ -170,12 +181,10 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
         The report folder.
     """
     results_dir = Path(results_dir)
+    folder = check_report_out(study, run, results_dir)
     results, complete = read_results(results_dir)
-    folder = results_dir / FOLDER
     metrics = study.metrics
     methods = [m.label for m in run.sweep.methods]
-    pngs = {f"indices_{m}.png": "png" for m in metrics} | {f"scatter_{_safe(m)}.png": "png" for m in methods}
-    check_files_in(folder, {"indices.csv": "report-csv", "outputs.csv": "report-csv", "gsa.md": "report-md", **pngs})
     make_folder(folder, what="report folder")
     design = run.design.method
     indices = index_table(study, run, results)

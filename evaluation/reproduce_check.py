@@ -17,6 +17,7 @@ brightest, their rows move by far more and the check names them.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterator
 from typing import Any
@@ -143,3 +144,101 @@ def tolerance_text() -> str:
             "0.01 points, its percentile of the paper's number exactly, its analytic tables within float "
             "rounding (t*/t ±1e-6, 3 + E_p ±1e-9); `nearlight reproduce --against DIR` checks a run "
             "against another one's `paper_reproduction.json`, table by table.")
+
+
+@functools.cache
+def _reference_model() -> type:
+    """The pydantic model of what :func:`rows` reads from a reproduction document (other keys are free)."""
+    from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
+
+    free = ConfigDict(extra="allow")
+    Number = float | None
+    Metrics = create_model("Metrics", __config__=free, **{m: (Number, None) for m in TOLERANCES})
+    StudyRow = create_model("StudyRow", __config__=free, **{m: (Number, None) for m in STUDY_TOLERANCES})
+
+    class Methods(BaseModel):
+        model_config = free
+        methods: dict[str, Metrics]
+
+    class Row(Metrics):  # type: ignore[misc, valid-type]
+        method: str
+        lamp_distance_m: float | None = None
+        distance_m: float | None = None
+
+        @model_validator(mode="after")
+        def _distance(self) -> Any:
+            if self.lamp_distance_m is None and self.distance_m is None:
+                raise ValueError("lamp_distance_m: missing (a row's lamp distance, in metres)")
+            return self
+
+    class Sample(Metrics):  # type: ignore[misc, valid-type]
+        method: str
+        layout: str
+        jitter: str
+
+    class Half(StudyRow):  # type: ignore[misc, valid-type]
+        jitters: list[str]
+
+    class Distribution(BaseModel):
+        model_config = free
+        all: StudyRow  # type: ignore[valid-type]
+        layouts: dict[str, StudyRow]  # type: ignore[valid-type]
+        halves: list[Half]
+
+    class Table(BaseModel):
+        model_config = free
+        rows: list[StudyRow]  # type: ignore[valid-type]
+        delta_px: Number = None
+
+    class Experiment(BaseModel):
+        model_config = free
+        methods: dict[str, Metrics] = {}  # type: ignore[valid-type]
+        variants: dict[str, Methods] = {}
+        rows: list[Row] = []
+        samples: list[Sample] = []
+        distributions: dict[str, Distribution] = {}
+        ep_curves: dict[str, Any] = {}
+        fidelity: dict[str, Table] = {}
+
+    class Profile(BaseModel):
+        model_config = free
+        name: str
+
+    class Reference(BaseModel):
+        model_config = free
+        profile: Profile
+        experiments: dict[str, Experiment] = Field(min_length=1)
+
+    return Reference
+
+
+def read_reference(path: Any, profile: str) -> dict[str, Any]:
+    """A reproduction document to check a run against (``reproduce --against``), validated before any work.
+
+    Raises
+    ------
+    UserError
+        One line naming ``path`` and the key: unreadable, not JSON, a key of the wrong kind, no
+        experiments, no number to compare, or another profile than ``profile``.
+    """
+    import json
+
+    from ..errors import UserError
+    from ..files.schema import validate
+
+    where = f"--against {path}"
+    try:
+        doc = json.loads(path.read_bytes().decode("utf-8"))
+    except OSError as exc:
+        raise UserError(f"{where}: cannot read ({exc.strerror or exc}); expected a folder written by "
+                        "`nearlight reproduce`") from None
+    except (ValueError, RecursionError) as exc:
+        raise UserError(f"{where}: not valid JSON ({' '.join(str(exc).split())[:80]})") from None
+    if not (isinstance(doc, dict) and isinstance(doc.get("experiments"), dict)):
+        raise UserError(f"{where}: experiments: expected a paper_reproduction.json document with experiments")
+    validate(_reference_model(), doc, where=where)
+    if doc["profile"]["name"] != profile:
+        raise UserError(f"{where}: profile {doc['profile']['name']!r}, this run is {profile!r} (compare like with like)")
+    if next(rows(doc), None) is None:
+        raise UserError(f"{where}: experiments: no number to compare (a reference agrees with anything then)")
+    return doc

@@ -28,25 +28,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _reference(folder: str, profile: str) -> dict:
     """The reference document of ``--against``, checked before any work."""
-    import json
     from pathlib import Path
 
-    from ..errors import UserError
+    from .reproduce_check import read_reference
 
-    path = Path(folder) / "paper_reproduction.json"
-    try:
-        doc = json.loads(path.read_bytes().decode("utf-8"))
-    except OSError as exc:
-        raise UserError(f"--against {path}: cannot read ({exc.strerror or exc}); expected a folder written by "
-                        "`nearlight reproduce`") from None
-    except ValueError as exc:
-        raise UserError(f"--against {path}: not valid JSON ({' '.join(str(exc).split())[:80]})") from None
-    if not (isinstance(doc, dict) and isinstance(doc.get("experiments"), dict)):
-        raise UserError(f"--against {path}: expected a paper_reproduction.json document with experiments")
-    got = (doc.get("profile") or {}).get("name")
-    if got != profile:
-        raise UserError(f"--against {path}: profile {got!r}, this run is {profile!r} (compare like with like)")
-    return doc
+    return read_reference(Path(folder) / "paper_reproduction.json", profile)
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 import traceback
 from collections.abc import Mapping
@@ -35,7 +36,7 @@ import pandas as pd
 
 from ..errors import UserError
 from ..estimator.sanity import UnsupportedEstimate
-from .metrics import INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
+from .metrics import ESTIMATE_COLUMNS, INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
 from .suite import INPUT, TRUTH, checksum_problems, read_manifest, strip_truth
 
 #: Metric -> (thresholds, as the metric's values; label of a threshold). The lamp: % of the distance from
@@ -136,28 +137,9 @@ def check_score_out(out: str | Path, manifest: Mapping[str, Any], method: str, o
         old = read_run_manifest(out)
         if old.get("sweep_hash") != _run_hash(manifest, method, options):
             raise UserError(f"{out}: holds another run ({old.get('name')!r}); choose another --out or remove it")
-    check_file_out(out / SCORECARD_PNG, "png")
-    for name, ok in ((SCORECARD_JSON, _is_scorecard_json), (SCORECARD_MD, _is_scorecard_md)):
-        p = out / name
-        if (p.exists() or p.is_symlink()) and (p.is_symlink() or not p.is_file() or not ok(p)):
-            raise UserError(f"{p}: exists and is not a scorecard written by nearlight score; choose another --out")
+    for name, kind in ((SCORECARD_PNG, "png"), (SCORECARD_JSON, "scorecard-json"), (SCORECARD_MD, "scorecard-md")):
+        check_file_out(out / name, kind)  # files.outputs.KINDS: how nearlight knows its own scorecard files
     return out
-
-
-def _is_scorecard_json(p: Path) -> bool:
-    try:
-        doc = json.loads(p.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return False
-    return isinstance(doc, dict) and doc.get("format") == FORMAT
-
-
-def _is_scorecard_md(p: Path) -> bool:
-    try:
-        with open(p, "rb") as f:
-            return f.read(len(MD_TITLE)).decode("utf-8", errors="replace") == MD_TITLE
-    except OSError:
-        return False
 
 
 def score_suite(
@@ -192,7 +174,7 @@ def score_suite(
     """
     from .engine import completed, executing
     from .environment import code_version
-    from .store import ResultStore
+    from .store import ResultStore, set_aside_damaged_parts
 
     options = dict(options or {})
     suite_dir = Path(suite_dir)
@@ -203,19 +185,22 @@ def score_suite(
     if problems:
         more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
         raise UserError(problems[0] + more + "; rebuild or re-download the suite")
+    _check_category_names(suite_dir, manifest)
     t_start = time.perf_counter()
     label = method_label(method, options)
     cats = list(manifest["categories"])
     axes = list(manifest["cases"][0]["categories"]) if manifest["cases"] else []
     store = ResultStore(out, name=f"score {manifest['suite']} v{manifest['version']} {label}",
                         sweep_hash=_run_hash(manifest, method, options), n_tasks=len(manifest["cases"]), axes=axes)  # fmt: skip
+    for moved in set_aside_damaged_parts(out):  # as a sweep does: a re-run recomputes a damaged row
+        print(f"nearlight: note: a damaged result part was moved to {moved}; its case is scored again", file=sys.stderr)
     done = store.done_ids()
     todo = [c for c in manifest["cases"] if c["id"] not in done]
     version = code_version()
     failed = 0
-    with executing(workers, scheduler) as executor:
-        futs = {executor.submit(score_case, {"folder": str(suite_dir / c["path"])}, method=method, options=options): c
-                for c in todo}  # fmt: skip
+    with executing(workers, scheduler, running=f"method {method}") as executor:
+        futs = {executor.submit(score_case, {"folder": str(suite_dir / c["path"])}, method=method,
+                                options=options): c for c in todo}  # fmt: skip
         for fut in completed(executor, futs, desc=f"{manifest['suite']}: {label}", unit="case", progress=progress,
                              total=len(manifest["cases"]), initial=len(manifest["cases"]) - len(todo)):  # fmt: skip
             c = futs[fut]
@@ -240,6 +225,22 @@ def score_suite(
                entry_modules=[__name__])  # fmt: skip
     write_scorecard(card, out)
     return card, counts
+
+
+#: Columns of a score row that are not the case's categories (a category of the same name would replace them).
+ROW_COLUMNS = ("task_id", "task_index", "sweep", "seed", "noisy", "method", "render_key", "renderer", "code_version",
+               "status", "error", "runtime_s", LOBE_COLUMN, *METRICS, *INFO_COLUMNS, *ESTIMATE_COLUMNS)  # fmt: skip
+
+
+def _check_category_names(suite_dir: Path, manifest: Mapping[str, Any]) -> None:
+    """A (hand-edited) manifest's category named like a row column (``task_id``: the row's file name) is refused."""
+    from .suite import MANIFEST
+
+    for i, c in enumerate(manifest["cases"]):
+        clash = sorted(set(c["categories"]) & set(ROW_COLUMNS))
+        if clash:
+            raise UserError(f"{suite_dir / MANIFEST}: cases.{i}.categories.{clash[0]}: a category cannot be named like "
+                            f"a column of the score's rows ({', '.join(ROW_COLUMNS[:12])}, the metrics, ...)")  # fmt: skip
 
 
 def median_ci(x: np.ndarray, *, level: float = 0.95) -> tuple[float, float, float]:

@@ -26,7 +26,7 @@ from typing import Any
 import pandas as pd
 
 from ..errors import UserError
-from ..files.atomic import atomic_write
+from ..files.atomic import atomic_write, cannot_write
 
 RESULTS = "results.parquet"
 MANIFEST = "sweep.json"
@@ -55,7 +55,7 @@ class ResultStore:
         try:
             (self.out / PARTS).mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise UserError(f"{self.out}: cannot write there ({exc.strerror or exc})") from None
+            raise cannot_write(self.out, exc) from None
         manifest = self.out / MANIFEST
         doc = {"format": "nearlight-sweep/1", "name": name, "sweep_hash": sweep_hash, "tasks": n_tasks, "axes": list(axes)}
         if manifest.is_file():
@@ -152,8 +152,8 @@ def _read_frame(path: Path, *, fix: str) -> pd.DataFrame:
 
 
 def _part_fix(path: Path) -> str:
-    return (f"run the same `nearlight sweep` again: it moves the damaged part to {PARTS}/damaged/ and "
-            f"recomputes task {path.stem}")
+    return (f"delete it, or run the same `nearlight sweep` or `nearlight score` again: it moves the damaged part "
+            f"to {PARTS}/damaged/ and recomputes task {path.stem}")
 
 
 def read_parts(out: str | os.PathLike) -> pd.DataFrame:

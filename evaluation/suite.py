@@ -30,21 +30,26 @@ manifest's tolerance on their *digests* (block means of every image layer,
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import functools
 import hashlib
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..errors import UserError
+from .sweep import stable_hash  # noqa: F401  (one hash for task ids, sweeps, suites and cases; re-exported)
 
 #: The manifest's ``format``.
 FORMAT = "nearlight-suite/1"
 MANIFEST = "manifest.json"
+#: The lock a build holds in its folder (two builds into one folder at once are refused).
+LOCK = ".build.lock"
 CASES = "cases"
 #: Sub-folders of a case: the capture a method sees, and the noise-free capture with the truth.
 INPUT, TRUTH = "input", "truth"
@@ -128,11 +133,6 @@ class Suite:
     def render_keys(self) -> list[str]:
         """Distinct physical configurations over all parts, in case order."""
         return list(dict.fromkeys(c.task.render_key for c in self.cases))
-
-
-def stable_hash(obj: Any) -> str:
-    """A 16-hex-digit sha256 of ``obj`` as sorted JSON: the same on every machine."""
-    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 def load_suite(path: str | Path, *, check_pin: bool = True) -> Suite:
@@ -379,16 +379,23 @@ def build_case(payload: Mapping[str, Any], *, renderer: Any, cache_dir: str | No
     clean = renderer.render(payload["scene"], cache_dir=None if cache_dir is None else Path(cache_dir))
     observed = strip_truth(noisy_capture(clean, payload))
     root = Path(folder)
-    write_capture(observed, root / INPUT)
-    write_capture(clean, root / TRUTH)
+    try:
+        write_capture(observed, root / INPUT)
+        write_capture(clean, root / TRUTH)
+    except BaseException:  # a full disk, Ctrl-C: no half-written case is left (a resumed build writes it whole)
+        _remove_partial_case(root)
+        raise
     return case_record(root)
 
 
 def case_record(root: Path) -> dict[str, Any]:
-    """``files`` (sha256 of each file under ``root``, relative paths) and ``digests`` of a case folder."""
+    """``files`` (sha256 of each capture file of the case's ``input`` and ``truth``, relative paths) and
+    ``digests`` of a case folder. Only the captures' own files: a scratch folder an interrupted write left
+    beside them (``.input.<random>.partial``) is never vouched for."""
     from ..capture import read_capture
+    from ..files.outputs import CAPTURE_FILES
 
-    files = {str(f.relative_to(root)): sha256_file(f) for f in sorted(root.rglob("*")) if f.is_file()}
+    files = {f"{sub}/{name}": sha256_file(root / sub / name) for sub in (INPUT, TRUTH) for name in sorted(CAPTURE_FILES)}
     digests = {sub: image_digest(read_capture(root / sub)) for sub in (INPUT, TRUTH)}
     return {"files": files, "digests": digests}
 
@@ -405,7 +412,7 @@ def check_build_out(out: str | Path, suite: Suite) -> Path:
     from ..files.outputs import check_folder
 
     out = check_folder(out, what="suite folder")
-    if out.is_dir() and any(out.iterdir()):
+    if out.is_dir() and any(p.name != LOCK for p in out.iterdir()):
         manifest = out / MANIFEST
         if not manifest.is_file():
             raise UserError(f"{out}: not empty and not a built suite (no {MANIFEST}); choose another --out")
@@ -447,12 +454,43 @@ def build_suite(
     counts : dict
         ``built``, ``kept`` (already there), ``rendered`` (renders made).
     """
+    out = check_build_out(out, suite)
+    out.mkdir(parents=True, exist_ok=True)
+    with build_lock(out):
+        check_build_out(out, suite)  # again, under the lock: what another build finished meanwhile
+        return _build_locked(suite, out, workers=workers, scheduler=scheduler, progress=progress, cache_dir=cache_dir)
+
+
+@contextlib.contextmanager
+def build_lock(out: Path) -> Iterator[None]:
+    """Hold ``out/.build.lock`` (an advisory ``flock``) for one build; a second build into ``out`` at the
+    same time is refused in one line. The kernel releases the lock when the process ends, also on SIGKILL,
+    so a killed build never blocks the next one."""
+    import fcntl
+    import os
+
+    path = out / LOCK
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        raise UserError(f"{path}: cannot lock the suite folder ({exc.strerror or exc})") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise UserError(f"{out}: another `nearlight suite build` is writing there (it holds {path}); wait for "
+                            f"it to finish, or choose another --out") from None  # fmt: skip
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _build_locked(suite: Suite, out: Path, *, workers: int, scheduler: Any, progress: bool,
+                  cache_dir: str | Path | None) -> tuple[Path, dict[str, int]]:  # fmt: skip
     from ..files.atomic import write_json
     from ..files.jsonable import jsonable
     from .engine import completed, executing, task_payload
 
-    out = check_build_out(out, suite)
-    out.mkdir(parents=True, exist_ok=True)
     if not (out / MANIFEST).is_file():  # marks the folder as this suite's (incomplete) build: resumable
         write_json(out / MANIFEST, jsonable(manifest_doc(suite, {})))
     renderer = suite.renderer
@@ -460,7 +498,7 @@ def build_suite(
     todo = [c for c in suite.cases if not _case_done(out / c.path)]
     rendered = 0
     records: dict[str, dict] = {}
-    with executing(workers, scheduler) as executor:
+    with executing(workers, scheduler, running=f"suite build {suite.name}") as executor:
         keys = list(dict.fromkeys(c.task.render_key for c in todo)) if renderer.prerender and cache else []
         if keys:
             scenes = {c.task.render_key: c.task.scene for c in todo}
@@ -482,7 +520,8 @@ def build_suite(
 
 
 def _remove_partial_case(root: Path) -> None:
-    """Remove what an interrupted build left of one case: only capture folders (nearlight's)."""
+    """Remove what an interrupted build left of one case: only capture folders and the scratch folders of
+    their writes (``.input.<random>.partial`` / ``.old``: nearlight's)."""
     import shutil
 
     from ..files.outputs import is_capture_dir
@@ -490,6 +529,9 @@ def _remove_partial_case(root: Path) -> None:
     for sub in (INPUT, TRUTH):
         if is_capture_dir(root / sub):
             shutil.rmtree(root / sub)
+        for scratch in [*root.glob(f".{sub}.*.partial"), *root.glob(f".{sub}.*.old")] if root.is_dir() else []:
+            if scratch.is_dir() and not scratch.is_symlink():
+                shutil.rmtree(scratch, ignore_errors=True)
 
 
 def manifest_doc(suite: Suite, records: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
@@ -541,30 +583,96 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
 
 
 def read_manifest_file(path: str | Path) -> dict[str, Any]:
-    """A suite manifest file, checked for its format and keys."""
+    """A suite manifest file, validated (:class:`_Manifest`: every key's type, case ids plain names, case
+    folders and file names relative paths inside the suite), one line naming the key otherwise."""
+    from ..files.schema import validate
+
     path = Path(path)
     try:
-        doc = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UserError(f"{path}: not a readable suite manifest ({' '.join(str(exc).split())})") from None
+        doc = json.loads(path.read_bytes().decode("utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise UserError(f"{path}: not a readable suite manifest ({' '.join(str(exc).split())[:120]})") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise UserError(f"{path}: format: expected {FORMAT!r} (a manifest written by nearlight suite build)")
-    for key in ("suite", "version", "cases_hash", "categories", "cases", "tolerance", "complete"):
-        if key not in doc:
-            raise UserError(f"{path}: {key}: missing")
-    if doc["complete"] is not True:
-        raise UserError(f"{path}: an interrupted build (complete: false); finish it: nearlight suite build "
+    if doc.get("complete") is False:
+        raise UserError(f"{path}: complete: false, an interrupted build; finish it: nearlight suite build "
                         f"SUITE.yaml --out {path.parent}")  # fmt: skip
+    validate(_manifest_models()[0], doc, where=str(path))
     return doc
+
+
+@functools.cache
+def _manifest_models() -> tuple[type, type]:
+    """The pydantic models of a manifest (built on first use: pydantic is imported only by readers)."""
+    from typing import Annotated, Literal
+
+    from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StrictBool, StrictInt, field_validator
+
+    from ..files.schema import check_name, check_relative
+
+    Name = Annotated[str, AfterValidator(check_name)]
+    Relative = Annotated[str, AfterValidator(check_relative)]
+    Sha256 = Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]
+    Number = float | None
+
+    class Tolerance(BaseModel):
+        model_config = ConfigDict(extra="allow")
+        digest_grid: StrictInt = Field(ge=1)
+        digest_rtol: float = Field(ge=0, allow_inf_nan=False, strict=True)
+
+    class CaseEntry(BaseModel):
+        model_config = ConfigDict(extra="allow")
+        id: Name
+        path: Relative
+        categories: dict[str, str | float | int | bool | None]
+        seed: StrictInt
+        noisy: StrictBool
+        files: dict[Relative, Sha256] = Field(min_length=1)
+        digests: dict[Literal["input", "truth"], dict[str, list[Number]]]
+
+        @field_validator("digests")
+        @classmethod
+        def _both(cls, v: dict) -> dict:
+            if set(v) != {INPUT, TRUTH}:
+                raise ValueError(f"expected {INPUT} and {TRUTH}, got {', '.join(sorted(v)) or 'none'}")
+            return v
+
+    class Manifest(BaseModel):
+        model_config = ConfigDict(extra="allow")
+        format: Literal["nearlight-suite/1"]
+        suite: str = Field(min_length=1)
+        version: StrictInt = Field(ge=1)
+        cases_hash: str = Field(min_length=1)
+        categories: list[str]
+        tolerance: Tolerance
+        complete: Literal[True]
+        cases: list[CaseEntry] = Field(min_length=1)
+
+        @field_validator("cases")
+        @classmethod
+        def _unique(cls, v: list) -> list:
+            for key in ("id", "path"):
+                seen = [getattr(c, key) for c in v]
+                twice = next((x for x in seen if seen.count(x) > 1), None)
+                if twice is not None:
+                    raise ValueError(f"{key} {twice!r} names two cases")
+            return v
+
+    return Manifest, CaseEntry
+
+
 
 
 def checksum_problems(folder: str | Path, manifest: Mapping[str, Any]) -> list[str]:
     """One line per file of the manifest that is missing or whose sha256 differs (empty: all good)."""
+    from ..files.schema import inside
+
     folder = Path(folder)
     problems = []
     for case in manifest["cases"]:
+        root = inside(folder, case["path"], where=f"{folder / MANIFEST}: cases.{case['id']}.path")
         for rel, sha in case["files"].items():
-            f = folder / case["path"] / rel
+            f = inside(root, rel, where=f"{folder / MANIFEST}: cases.{case['id']}.files")
             if not f.is_file():
                 problems.append(f"{f}: missing")
             elif sha256_file(f) != sha:

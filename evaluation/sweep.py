@@ -25,9 +25,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from ..errors import UserError
+from ..files.schema import validate
 from ..files.yamlfile import load_yaml_mapping
 from ..files.dotted import set_dotted
 from ..physics.reflectance import LOBES
@@ -151,7 +152,7 @@ class Sweep:
     @property
     def sweep_hash(self) -> str:
         """Hash of the task list: results of one sweep never mix with another's."""
-        return _hash([t.task_id for t in self.tasks])
+        return stable_hash([t.task_id for t in self.tasks])
 
     @property
     def render_keys(self) -> list[str]:
@@ -159,12 +160,10 @@ class Sweep:
         return list(dict.fromkeys(t.render_key for t in self.tasks))
 
 
-def _hash(obj: Any) -> str:
+def stable_hash(obj: Any) -> str:
+    """A 16-hex-digit sha256 of ``obj`` as sorted JSON: the same on every machine (task ids, sweep and
+    suite hashes, case ids)."""
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
-
-
-def _where(path: str, loc: tuple[Any, ...]) -> str:
-    return f"{path}: " + (".".join(str(x) for x in loc) or "<top>")
 
 
 def load_sweep(
@@ -200,11 +199,7 @@ def load_sweep(
         p = Path(source)
         path, base_dir = str(p), p.parent
         doc = load_yaml_mapping(p, what="sweep file", keys="name, scene, axes, seeds, methods")
-    try:
-        spec = _SweepFile.model_validate(doc)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        raise UserError(f"{_where(path, err['loc'])}: {err['msg'].removeprefix('Value error, ')}") from None
+    spec = validate(_SweepFile, doc, where=path)
 
     sets, axis_values = _profiled(path, spec, profile)
     renderer = RENDERERS[spec.renderer]()
@@ -234,7 +229,7 @@ def load_sweep(
     names = list(axes)
     for combo in itertools.product(*(axes[n] for n in names)):
         chosen = dict(zip(names, combo))
-        phys = tuple((n, _hash(v[1])) for n, v in chosen.items() if not AXES.get(n, (False,))[0])
+        phys = tuple((n, stable_hash(v[1])) for n, v in chosen.items() if not AXES.get(n, (False,))[0])
         if phys not in scenes:
             scene = _physical_scene(renderer, base, chosen, path)
             scenes[phys] = (scene, renderer.render_key(scene))
@@ -250,7 +245,7 @@ def load_sweep(
                 set_dotted(shot, "capture.seed", seed, where=f"{path}: seeds")
                 shot_key = renderer.render_key(shot)
             for m in methods:
-                tid = _hash([spec.renderer, shot, noise, range_noise, seed, m.label, m.method, m.options])
+                tid = stable_hash([spec.renderer, shot, noise, range_noise, seed, m.label, m.method, m.options])
                 tasks.append(Task(len(tasks), tid, config, shot, shot_key, noise, range_noise, seed, m, noisy))
     return Sweep(spec.name, path, renderer, axes, seeds, methods, tasks, spec.crlb, profile)
 
@@ -346,7 +341,7 @@ def _check_set_axis(renderer: Renderer, base: dict, path: str, labels: Any) -> N
         where = f"{path}: axes.set: {label!r}"
         if not isinstance(overrides, dict) or not all(isinstance(k, str) for k in overrides):
             raise UserError(f"{where}: expected a mapping of dotted scene keys")
-        same = seen.setdefault(_hash(overrides), label)
+        same = seen.setdefault(stable_hash(overrides), label)
         if same != label:
             raise UserError(f"{where}: the same keys and values as {same!r}")
         scene = copy.deepcopy(base)

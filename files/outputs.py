@@ -160,6 +160,11 @@ def _json_with(*keys: str) -> Callable[[Path], bool]:
     return check
 
 
+def _json_format(path: Path, prefix: str) -> bool:
+    doc = _read_json(path)
+    return isinstance(doc, dict) and isinstance(doc.get("format"), str) and doc["format"].startswith(prefix)
+
+
 def _text_starting(*prefixes: str) -> Callable[[Path], bool]:
     def check(path: Path) -> bool:
         try:
@@ -182,6 +187,9 @@ KINDS: dict[str, tuple[str, str, Callable[[Path], bool]]] = {
                           _json_with("nearlight_version", "experiments")),
     "reproduction-md": (".md", "a paper reproduction written by `nearlight reproduce`",
                         _text_starting("# Paper reproduction")),
+    "scorecard-json": (".json", "a scorecard written by `nearlight score`", lambda p: _json_format(p, "nearlight-scorecard/")),
+    "scorecard-md": (".md", "a scorecard written by `nearlight score`", _text_starting("# Scorecard")),
+    "comparison": (".json", "a comparison written by `nearlight compare --json`", _json_with("baseline", "checks")),
     "provenance": (".json", "a provenance record written by nearlight", _json_with("parts")),
     "report-md": (".md", "a sweep report written by `nearlight report`", _text_starting("# Sweep report")),
     # Report tables: a header naming a method column, or pandas' empty table.

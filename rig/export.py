@@ -24,7 +24,7 @@ import numpy as np
 import yaml
 
 from ..capture import Capture
-from ..capture.format import write_error
+from ..files.atomic import cannot_write
 from ..errors import UserError
 from ..files.outputs import check_capture_out
 from ..physics.camera import auto_saturation
@@ -129,7 +129,7 @@ def export_rig(capture: Capture, out: str | os.PathLike, *, mosaic: str = "mono"
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
     except OSError as exc:
-        raise UserError(write_error(out, exc)) from None
+        raise cannot_write(out, exc) from None
     try:
         write_png16(tmp / FRAME_NAME, dn)
         if depth_format == "png":
@@ -141,7 +141,7 @@ def export_rig(capture: Capture, out: str | os.PathLike, *, mosaic: str = "mono"
         tmp.rename(out)
     except OSError as exc:  # a full disk, a quota: nothing half-written is left
         shutil.rmtree(tmp, ignore_errors=True)
-        raise UserError(write_error(out, exc)) from None
+        raise cannot_write(out, exc) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

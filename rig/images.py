@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..capture.format import check_not_full
+from ..files.atomic import check_not_full
 from ..errors import UserError
 
 #: File types a raw file may have, by suffix (lower case).

@@ -892,6 +892,12 @@ def _snapshot(folder: Path) -> dict[str, bytes | None]:
 
 @pytest.mark.parametrize("c", CASES, ids=[c.id for c in CASES])
 def test_broken_input_is_one_clear_line(c: Case, tmp_path, assets, capsys, monkeypatch):
+    assert_one_clear_line(c, tmp_path, assets, capsys, monkeypatch)
+
+
+def assert_one_clear_line(c: Case, tmp_path: Path, assets: dict[str, Path], capsys, monkeypatch) -> None:
+    """Build case ``c`` in ``tmp_path/case``, run it there, and check the layer's four rules (module docstring);
+    shared with the other fuzz files (``tests/test_fuzz_newer_verbs.py``)."""
     folder = tmp_path / "case"
     folder.mkdir()
     argv, culprit = c.build(folder, assets)

@@ -137,7 +137,7 @@ def test_interrupted_build_is_refused_by_score_and_resumed_by_build(built, tmp_p
         shutil.rmtree(copy / "cases" / f"{i:03d}")
     assert main(["score", str(copy), "--method", "full", "--out", str(tmp_path / "s")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "an interrupted build (complete: false)" in err
+    assert err.count("\n") == 1 and "complete: false, an interrupted build" in err
     assert main(["suite", "build", str(path), "--out", str(copy), "--no-cache", "--quiet"]) == 0
     assert f"built 2 case(s), kept {N_CASES - 2} already built" in capsys.readouterr().err
     assert read_manifest(copy)["cases"] == read_manifest(out)["cases"]
