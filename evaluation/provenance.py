@@ -13,7 +13,11 @@ with the command that regenerates it.
 
 Content hashes, not commits: a report stays valid across commits that do not
 touch its code (docs, tests, another stage), and git history is not needed
-(a release tarball checks the same way).
+(a release tarball checks the same way). The code is hashed as its tokens less
+comments, docstrings and blank lines (:func:`code_tokens`), so tidying a
+docstring or a comment leaves every report fresh while changing a constant or
+a line of code makes the reports that import it stale; sweep and scene files
+are hashed as bytes.
 
 Baselines (a folder named ``*-baseline``, :func:`is_baseline`) record the
 same but are exempt from the freshness test: a regression baseline is made by
@@ -26,8 +30,10 @@ from __future__ import annotations
 import ast
 import datetime as _dt
 import hashlib
+import io
 import json
 import os
+import tokenize
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -115,8 +121,75 @@ def dependencies(entry_modules: Iterable[str]) -> list[Path]:
     return sorted(seen)
 
 
+#: How a part's ``code`` entries are hashed (recorded as ``code_hash``; a record without it hashed raw bytes).
+CODE_HASH = "python-tokens/1"
+
+
 def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def code_tokens(source: str) -> list[str]:
+    """The tokens of Python ``source`` that its behaviour depends on: no comments, no docstrings, no blank lines.
+
+    Each token is ``"<type>:<text>"``; a string statement of its own (a
+    docstring, or any string expression statement: neither does anything) is
+    left out, as are comments and the line breaks of blank lines. Python
+    3.12's tokenizer splits an f-string into parts that 3.11 keeps as one
+    string: they are joined back to the source text, so the list is the same
+    under either.
+    """
+    lines = source.splitlines(keepends=True)
+
+    def text(start: tuple[int, int], end: tuple[int, int]) -> str:
+        (r0, c0), (r1, c1) = start, end
+        if r0 == r1:
+            return lines[r0 - 1][c0:c1]
+        return lines[r0 - 1][c0:] + "".join(lines[r0 : r1 - 1]) + lines[r1 - 1][:c1]
+
+    out: list[str] = []
+    statement_start = True  # the next token begins a statement
+    pending: str | None = None  # a string at a statement's start: kept unless the statement ends with it
+    depth = 0
+    fstring_start = None
+    for tok in tokenize.generate_tokens(io.StringIO(source).readline):
+        name = tokenize.tok_name[tok.type]
+        if name == "FSTRING_START":
+            depth += 1
+            fstring_start = fstring_start or tok.start
+            continue
+        if depth:
+            if name == "FSTRING_END":
+                depth -= 1
+                if not depth:
+                    tok = tokenize.TokenInfo(tokenize.STRING, text(fstring_start, tok.end), fstring_start, tok.end, "")
+                    name, fstring_start = "STRING", None
+            if depth:
+                continue
+        if name in ("COMMENT", "NL", "ENCODING", "ENDMARKER"):
+            continue
+        if pending is not None:
+            if name == "NEWLINE":  # the statement was the string alone: a docstring
+                pending, statement_start = None, True
+                continue
+            out.append(pending)
+            pending = None
+        if name == "STRING" and statement_start:
+            pending, statement_start = f"STRING:{tok.string}", False
+            continue
+        out.append(f"{name}:{tok.string if name not in ('NEWLINE', 'INDENT') else ''}")
+        statement_start = name in ("NEWLINE", "INDENT", "DEDENT")
+    if pending is not None:
+        out.append(pending)
+    return out
+
+
+def code_hash(path: Path) -> str:
+    """SHA-256 of a source file's :func:`code_tokens` (a Python file) or of its bytes (anything else), hex."""
+    if path.suffix != ".py":
+        return _sha256(path)
+    tokens = code_tokens(path.read_text(encoding="utf-8"))
+    return hashlib.sha256("\n".join(tokens).encode("utf-8")).hexdigest()
 
 
 def _rel(path: Path) -> str:
@@ -168,7 +241,8 @@ def record(
         "code_version": code_version(),
         "made": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "inputs": {_rel(Path(p)): _sha256(Path(p)) for p in inputs},
-        "code": {_rel(p): _sha256(p) for p in dependencies(entry_modules)},
+        "code_hash": CODE_HASH,
+        "code": {_rel(p): code_hash(p) for p in dependencies(entry_modules)},
     }
     return write_json(path, doc, what="the provenance record")
 
@@ -198,12 +272,13 @@ def stale(folder: str | os.PathLike) -> list[str]:
         parts: Mapping[str, Any] = doc.get("parts", {})
         for name, part in sorted(parts.items()):
             changed = []
-            for kind in ("code", "inputs"):
+            hashers = {"code": code_hash if part.get("code_hash") == CODE_HASH else _sha256, "inputs": _sha256}
+            for kind, hasher in hashers.items():
                 for rel, digest in part.get(kind, {}).items():
                     file = PACKAGE_ROOT / rel
                     if not file.is_file():
                         changed.append(f"{rel} missing")
-                    elif _sha256(file) != digest:
+                    elif hasher(file) != digest:
                         changed.append(f"{rel} changed")
             if changed:
                 lines.append(f"{prefix}{name}: {', '.join(changed)} (made by {part.get('code_version')}; "

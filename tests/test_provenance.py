@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -79,3 +80,24 @@ def test_records_below_the_folder_are_checked_too(fake_package, tmp_path):
     (fake_package / "sub" / "a.py").write_text("def f():\n    return 3\n")
     [line] = provenance.stale(out)
     assert line.startswith("sweeps/board: results: sub/a.py changed")
+
+
+def test_code_is_hashed_without_comments_and_docstrings(tmp_path):
+    """Tidying costs no regeneration: a docstring or comment edit in estimator/full.py keeps its code hash, a
+    changed constant or line of code does not (the freshness test then names the file)."""
+    from nearlight.evaluation.provenance import code_hash
+
+    src = (Path(provenance.PACKAGE_ROOT) / "estimator" / "full.py").read_text(encoding="utf-8")
+    assert '"""Method ``full``' in src and "REFIT_EVIDENCE = 50.0" in src  # the edits below find their text
+
+    def hashed(text: str) -> str:
+        path = tmp_path / "full.py"
+        path.write_text(text, encoding="utf-8")
+        return code_hash(path)
+
+    base = hashed(src)
+    assert hashed(src.replace('"""Method ``full``', '"""Method ``full``, tidied', 1)) == base
+    assert hashed(src.replace("\n\n\n", "\n\n\n# a new comment\n\n", 1)) == base
+    assert hashed(src.replace("REFIT_EVIDENCE = 50.0", "REFIT_EVIDENCE = 51.0")) != base
+    assert hashed(src.replace("REFIT_EVIDENCE = 50.0", "REFIT_EVIDENCE = 50.0  # why")) == base
+    assert hashed(src.replace('f"', 'rf"', 1)) != base  # a string that is code, not a docstring, counts
