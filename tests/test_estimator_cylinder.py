@@ -95,3 +95,43 @@ def test_full_warns_on_an_analytic_capture_without_a_visible_highlight(seed):
     evidence, warnings = fit(0.35)
     assert evidence > 1e4 * SPECULAR_EVIDENCE
     assert not any(w.startswith("no specular highlight") for w in warnings)
+
+
+@pytest.mark.render
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_every_method_refuses_the_noisy_cylinder_with_its_reason(cylinder, seed):
+    # The sanity rules' `evident`: the highlight's peak stands 2.2–3.0 noise deviations high on seeds 0–3 (noise
+    # alone reaches 4–5; every highlight of the sensitivity design >= 28), below SIGNIFICANCE_MIN (10). So `full`
+    # and `distant` (which fits the noise floor, explaining 0.77 of it) are failures with that reason, exit 1,
+    # never a lamp; the paper's ray stages refuse by themselves (E_p smallest at t_max).
+    from nearlight.errors import UserError
+    from nearlight.estimator.sanity import SIGNIFICANCE_MIN, highlight_significance, observation
+    from nearlight.generator.nuisances import observe
+
+    clean, _, _ = cylinder
+    cap = observe(clean, noise=REAL_CAMERA, seed=seed)
+    assert highlight_significance(cap, observation(cap, {})) < SIGNIFICANCE_MIN / 2
+    for method in ("full", "distant"):
+        est = estimate(cap, method=method)
+        assert est.status == "failed" and est.diagnostics["failure"]["rule"] == "evident", method
+        assert np.all(np.isnan(est.lamp_position))
+    for method in ("paper-init", "paper"):
+        with pytest.raises(UserError, match="cannot reach the lamp"):
+            estimate(cap, method=method)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_capture_without_a_visible_highlight_is_refused_mitsuba_free(seed):
+    # The analytic board of the test above (Ks 1e-5, the 12-bit camera: lamp CRLB 7.4 m) has no highlight above
+    # the noise: `full` and `distant` are refused (`evident`); with Ks 0.35 both answer.
+    from nearlight.generator.analytic import analytic_capture
+    from nearlight.generator.nuisances import observe
+
+    def capture(ks: float):
+        bsdf = {"model": "torrance_sparrow", "ks": [ks] * 3, "sigma": 0.09}
+        return observe(analytic_capture(lamp_position=(0.0, 0.3, 0.3), bsdf=bsdf), noise=REAL_CAMERA, seed=seed)
+
+    dim, bright = capture(1e-5), capture(0.35)
+    for method in ("full", "distant"):
+        assert estimate(dim, method=method).diagnostics.get("failure", {}).get("rule") == "evident", method
+    assert estimate(bright, method="full").ok
