@@ -24,6 +24,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import json
+import os
 import random
 import shutil
 from collections.abc import Callable
@@ -886,8 +887,15 @@ def _no_rendering(monkeypatch):
     monkeypatch.setenv("NEARLIGHT_CACHE", "/nonexistent-nearlight-cache")
 
 
-def _snapshot(folder: Path) -> dict[str, bytes | None]:
-    return {str(p.relative_to(folder)): (None if p.is_dir() else p.read_bytes()) for p in sorted(folder.rglob("*"))}
+def _snapshot(folder: Path) -> dict[str, bytes | str | None]:
+    """Every file's bytes below ``folder`` (None for a folder), a symbolic link by its target (a case may link a
+    file to /dev/zero, which must not be read)."""
+    def entry(p: Path) -> bytes | str | None:
+        if p.is_symlink():
+            return "-> " + os.readlink(p)
+        return None if p.is_dir() else p.read_bytes()
+
+    return {str(p.relative_to(folder)): entry(p) for p in sorted(folder.rglob("*"))}
 
 
 @pytest.mark.parametrize("c", CASES, ids=[c.id for c in CASES])
