@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import inspect
 import os
 import time
 from collections.abc import Callable
@@ -15,6 +16,7 @@ from .full import full_estimate
 from .options import check_options
 from .paper import initial_estimate, paper_estimate
 from .result import Estimate
+from .observation import shared_observations
 from .sanity import review
 
 #: Built-in methods: ``fn(capture, **options) -> Estimate``.
@@ -107,7 +109,31 @@ def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", san
     options = check_options(fn, options, method=method)
     if isinstance(capture, (str, os.PathLike, Path)):
         capture = read_capture(capture)
-    clock = time.perf_counter()
+    with shared_observations():  # the rules read the observation the method made
+        clock = time.perf_counter()
+        result = _run(fn, capture, method, options)
+        if not result.timings:
+            result.timings["total"] = time.perf_counter() - clock
+        if sanity and result.ok:
+            clock = time.perf_counter()
+            result = review(capture, result, {**observation_defaults(fn), **options})
+            result.timings["sanity"] = time.perf_counter() - clock
+    return result
+
+
+def observation_defaults(fn: Callable[..., Estimate]) -> dict[str, object]:
+    """A method's own defaults of the options that shape its observation (``separation``, ``threshold``), so the
+    sanity rules see the capture as the method did (``full`` separates by ``projected``, the others by ``fit``)."""
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return {}
+    return {k: params[k].default for k in ("separation", "threshold")
+            if k in params and params[k].default is not inspect.Parameter.empty}
+
+
+def _run(fn: Callable[..., Estimate], capture: Capture, method: str, options: dict) -> Estimate:
+    """``fn(capture, **options)``, its result checked; a plug-in's failure of any kind is one line naming it."""
     if method in METHODS or method in EXTRA_METHODS:
         result = fn(capture, **options)
     else:
@@ -123,10 +149,4 @@ def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", san
     if not isinstance(result, Estimate):
         raise UserError(f"method {method}: returned {type(result).__name__}, expected nearlight.estimator.Estimate")
     result.method = method
-    if not result.timings:
-        result.timings["total"] = time.perf_counter() - clock
-    if sanity and result.ok:
-        clock = time.perf_counter()
-        result = review(capture, result, options)
-        result.timings["sanity"] = time.perf_counter() - clock
     return result

@@ -11,7 +11,10 @@ and finds the specular mask and the peak pixel. It never reads
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import dataclasses
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -554,8 +557,31 @@ def _peak_pixel(lum: np.ndarray, usable: np.ndarray) -> tuple[int, int]:
     return int(rows[k]), int(cols[k])
 
 
+#: The observations made inside :func:`shared_observations`, by (capture id, separation, threshold): the
+#: capture itself is kept beside its observation, so its id cannot be reused while the entry lives.
+_SHARED: contextvars.ContextVar[dict | None] = contextvars.ContextVar("nearlight_observations", default=None)
+
+
+@contextlib.contextmanager
+def shared_observations() -> Iterator[None]:
+    """Within the block, :func:`observe` of one capture object with the same options is made once.
+
+    :func:`nearlight.estimator.estimate` runs a method and then the sanity
+    rules (:mod:`nearlight.estimator.sanity`) inside one block, so the rules
+    read the observation the method made (at 640×480, ~70 ms not spent
+    twice). Only for the length of one call: a capture whose arrays are
+    changed in place between calls is observed afresh.
+    """
+    token = _SHARED.set({})
+    try:
+        yield
+    finally:
+        _SHARED.reset(token)
+
+
 def observe(capture: Capture, *, separation: str = "fit", threshold: float = THRESHOLD) -> Observation:
-    """Reduce a capture to an :class:`Observation`.
+    """Reduce a capture to an :class:`Observation` (once per capture and options inside
+    :func:`shared_observations`).
 
     Parameters
     ----------
@@ -574,6 +600,17 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = THR
         relative to the image (:func:`check_silhouette`), NaNs at surface pixels, no specular pixel above
         the threshold, or a peak on the image border.
     """
+    shared = _SHARED.get()
+    if shared is None:
+        return _observe(capture, separation=separation, threshold=threshold)
+    key = (id(capture), separation, float(threshold))
+    if key not in shared:
+        shared[key] = (capture, _observe(capture, separation=separation, threshold=threshold))
+    return shared[key][1]
+
+
+def _observe(capture: Capture, *, separation: str, threshold: float) -> Observation:
+    """:func:`observe`, made afresh."""
     P, N, V, cos_r, surface, filled = surface_geometry(capture)
     check_rays(capture)
     check_silhouette(capture)  # a mirrored range passes check_rays (capture/silhouette.py)

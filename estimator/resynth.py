@@ -49,12 +49,30 @@ def render_specular(capture: Capture, estimate: Estimate) -> np.ndarray:
     ndarray, shape (H, W, 3)
         Specular radiance, float64; 0 off the surface.
     """
+    P, N, _, _, surface, _ = surface_geometry(capture)
+    out = np.zeros((capture.height, capture.width, 3))
+    out[surface] = specular_at(P[surface], N[surface], np.asarray(capture.camera.position, dtype=float), estimate)
+    return out
+
+
+def specular_at(P: np.ndarray, N: np.ndarray, camera_position: np.ndarray, estimate: Estimate) -> np.ndarray:
+    """:func:`render_specular` at some surface points only.
+
+    Parameters
+    ----------
+    P, N : ndarray, shape (n, 3)
+        Surface points (m) and their unit normals.
+    camera_position : ndarray, shape (3,)
+        Metres.
+    estimate : Estimate
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        Specular radiance, float64, finite (0 where the model has none).
+    """
     kind = estimate.light_model.get("type", "point")
     if kind not in RENDERERS:
         raise UserError(f"estimate light_model.type: expected one of {', '.join(RENDERERS)}, got {kind!r}")
-    P, N, _, _, surface, _ = surface_geometry(capture)
-    out = np.zeros((capture.height, capture.width, 3))
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        img = RENDERERS[kind](P[surface], N[surface], np.asarray(capture.camera.position, dtype=float), estimate)
-    out[surface] = np.nan_to_num(img)
-    return out
+        return np.nan_to_num(RENDERERS[kind](P, N, camera_position, estimate))

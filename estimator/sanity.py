@@ -71,7 +71,7 @@ from ..errors import UserError
 from .highlights import segment_highlights, several_highlights_warning
 from .noise import camera_noise, specular_variance
 from .observation import Observation, observe
-from .resynth import render_specular
+from .resynth import specular_at
 from .result import Estimate
 
 #: ``reach``: lamp–highlight distance over the camera–highlight distance (the paper stage's default ``t_max``).
@@ -162,7 +162,7 @@ def explained_fraction(capture: Capture, est: Estimate, obs: Observation, region
     region : ndarray, shape (H, W), bool, optional
         The highlight's pixels; default the observation's mask.
     predicted : ndarray, shape (H, W, 3), optional
-        Ŝ, when already rendered.
+        Ŝ, when already rendered (:func:`predicted_specular`).
 
     Returns
     -------
@@ -171,7 +171,7 @@ def explained_fraction(capture: Capture, est: Estimate, obs: Observation, region
         farther from S than 0 is.
     """
     region = obs.mask if region is None else region
-    predicted = render_specular(capture, est) if predicted is None else predicted
+    predicted = predicted_specular(est, obs) if predicted is None else predicted
     observed = obs.specular[region]
     return float(1.0 - np.sum((observed - predicted[region]) ** 2) / np.sum(observed**2))
 
@@ -188,8 +188,16 @@ def clipped(capture: Capture) -> np.ndarray:
     return np.any(np.asarray(capture.stack) >= (1 - 1e-6) * float(saturation), axis=(0, 3))
 
 
-def own_highlight(capture: Capture, est: Estimate, obs: Observation, *,
-                  predicted: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+def predicted_specular(est: Estimate, obs: Observation) -> np.ndarray:
+    """The estimate's re-synthesised specular Ŝ over the observation's mask (0 elsewhere), shape (H, W, 3):
+    :func:`~nearlight.estimator.render_specular`'s model at those pixels only."""
+    out = np.zeros(obs.specular.shape)
+    out[obs.mask] = specular_at(obs.P[obs.mask], obs.N[obs.mask], obs.camera_position, est)
+    return out
+
+
+def own_highlight(capture: Capture, est: Estimate, obs: Observation, *, predicted: np.ndarray | None = None,
+                  several: bool | None = None) -> tuple[np.ndarray, float]:
     """The highlight a one-lamp estimate answers for, and the fraction of it that it explains.
 
     The observation's mask less its :func:`clipped` pixels (their specular
@@ -199,6 +207,9 @@ def own_highlight(capture: Capture, est: Estimate, obs: Observation, *,
     several-lamp capture answers for one lamp, and is held to that one's
     highlight (it also carries the several-highlights warning).
 
+    several : bool, optional
+        Whether the observation has several separate highlights (computed when not given).
+
     Returns
     -------
     region : ndarray, shape (H, W), bool
@@ -206,9 +217,10 @@ def own_highlight(capture: Capture, est: Estimate, obs: Observation, *,
         :func:`explained_fraction` over ``region``; NaN when every pixel of
         the highlight is clipped (then ``in-front`` and ``explains`` are not checked).
     """
-    predicted = render_specular(capture, est) if predicted is None else predicted
+    predicted = predicted_specular(est, obs) if predicted is None else predicted
     mask = obs.mask & ~clipped(capture)
-    labels = segment_highlights(obs.specular, obs.located).labels
+    several = several_highlights_warning(obs) is not None if several is None else several
+    labels = segment_highlights(obs.specular, obs.located).labels if several else np.zeros(mask.shape, int)
     regions = [mask & (labels == k) for k in range(1, int(labels.max()) + 1)] if labels.max() > 1 else []
     candidates = [r for r in regions if r.any()] or [mask]
     if not candidates[0].any():  # every highlight pixel clipped: nothing the re-synthesis can be held to
@@ -302,7 +314,8 @@ def with_warning(est: Estimate, warning: str | None) -> Estimate:
     return est
 
 
-def check(capture: Capture, est: Estimate, obs: Observation, options: Mapping[str, Any] | None = None) -> Failure | None:
+def check(capture: Capture, est: Estimate, obs: Observation, options: Mapping[str, Any] | None = None, *,
+          several: bool | None = None) -> Failure | None:
     """The first rule (module docstring) the estimate breaks, or None when it passes them all.
 
     Parameters
@@ -314,6 +327,8 @@ def check(capture: Capture, est: Estimate, obs: Observation, options: Mapping[st
         The capture's observation (:func:`observation`).
     options : mapping, optional
         The method's options (``t_max`` widens ``reach``).
+    several : bool, optional
+        Whether the observation has several separate highlights (:func:`own_highlight`).
 
     Returns
     -------
@@ -325,8 +340,7 @@ def check(capture: Capture, est: Estimate, obs: Observation, options: Mapping[st
             if failed is not None:
                 return failed
         if len(est.found_lamps()) == 1:
-            predicted = render_specular(capture, est)
-            region, explained = own_highlight(capture, est, obs, predicted=predicted)
+            region, explained = own_highlight(capture, est, obs, several=several)
             if region.any():
                 for failed in (_in_front(est, obs, region), _explains(est, explained)):
                     if failed is not None:
@@ -357,9 +371,10 @@ def review(capture: Capture, est: Estimate, options: Mapping[str, Any]) -> Estim
         obs = observation(capture, options)
     except UserError as exc:
         return est.refused("observable", f"the rules cannot observe the capture's highlight: {exc}")
+    several = several_highlights_warning(obs)
     if len(est.found_lamps()) == 1:  # every one-lamp method says so on several highlights
-        est = with_warning(est, several_highlights_warning(obs))
-    failed = check(capture, est, obs, options)
+        est = with_warning(est, several)
+    failed = check(capture, est, obs, options, several=several is not None)
     return est if failed is None else est.refused(*failed)
 
 
