@@ -319,23 +319,34 @@ def _distance_plot(rows: list[dict[str, Any]], methods: list[str], path: Path) -
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    refused = {}
     for m in methods:
         sel = [r for r in rows if r["method"] == m]
         d = [r["lamp_distance_m"] for r in sel]
-        axes[0].plot(d, [r["lamp_position_error_pct"] for r in sel], "o-", label=m)
-        axes[1].plot(d, [r["direction_error_deg"] for r in sel], "o-", label=m)
+        line, = axes[0].plot(d, [r["lamp_position_error_pct"] for r in sel], "o-", label=m)
+        axes[1].plot(d, [r["direction_error_deg"] for r in sel], "o-", label=m, color=line.get_color())
+        refused[m] = ([r["lamp_distance_m"] for r in sel if r["status"] != "ok"], line.get_color())
     for ax, label in zip(axes, ("lamp position error (% of distance)", "direction error (deg)")):
         ax.set_xscale("log")
         ax.set_yscale("symlog", linthresh=0.1)  # 0 and small errors linear, large ones logarithmic
         ax.set_ylim(bottom=0.0)  # an error is never negative: symlog's default would show −10¹
+        top = ax.get_ylim()[1]
+        for d, colour in (v for v in refused.values() if v[0]):  # no number: a cross on the top edge
+            ax.plot(d, [top] * len(d), "x", color=colour, markersize=9, mew=2, clip_on=False)
+        ax.set_ylim(0.0, top)
+        distances = sorted({r["lamp_distance_m"] for r in rows})
+        ax.set_xticks(distances, [f"{d:g}" for d in distances])
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_xlabel("lamp distance from the board centre (m)")
         ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
-    axes[0].legend()
     fig.suptitle("Near vs. distant: the paper's motivation (Fig. 1), measured")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.0, 0.8, 1.0))
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="center right", fontsize=9,
+               title="×: refused, no number", title_fontsize=8)
     return save_png(fig, path)
 
 

@@ -41,7 +41,11 @@ def test_every_method_and_scene_has_finite_numbers(quick_report):
         methods = doc["experiments"][name]["methods"]
         assert list(methods) == _labels(name)
         for m, row in methods.items():
-            assert row["status"] == "ok", (name, m, row.get("error"))
+            # a number, or a refusal by the sanity rules with its reason (never a crash); `full` answers everywhere
+            assert row["status"] in ("ok", "failed"), (name, m, row.get("error"))
+            if row["status"] == "failed":
+                assert row["error"].startswith("estimate: ") and not m.startswith("full"), (name, m, row["error"])
+                continue
             assert len(row["lamp_position"]) == 3 and row["lamp_position_error_m"] is not None, (name, m)
     rows = doc["experiments"]["near_vs_distant"]["rows"]
     assert {r["method"] for r in rows} == set(_labels("near_vs_distant"))
@@ -53,7 +57,7 @@ def test_the_report_is_a_view_of_the_engines_rows(quick_report):
     out, doc = quick_report
     for name, ex in doc["experiments"].items():
         df, complete = read_results(out / ex["results"])
-        assert complete and set(df["status"]) == {"ok"}, name
+        assert complete and set(df["status"]) <= {"ok", "failed"}, name  # refusals are rows, crashes are not
         assert (out / ex["results"] / "environment.json").is_file()
         assert ex["sweep"] == f"sweeps/paper/{EXPERIMENTS[name][0]}"
         shown = ex.get("rows") or ex.get("samples") or [
@@ -62,6 +66,10 @@ def test_the_report_is_a_view_of_the_engines_rows(quick_report):
         assert sorted(r["task_id"] for r in shown) == sorted(df["task_id"])
         for r in shown:
             row = by_id.loc[r["task_id"]]
+            assert r["status"] == row["status"]
+            if r["status"] != "ok":
+                assert r["error"] == row["error"]
+                continue
             assert r["lamp_position"] == [row["est_lamp_x_m"], row["est_lamp_y_m"], row["est_lamp_z_m"]]
             assert r["lamp_position_error_pct"] == row["lamp_position_error_pct"]
             assert r["code_version"] == row["code_version"] and "+g" in r["code_version"]
@@ -103,13 +111,15 @@ def test_full_method_is_within_one_percent_on_the_paper_board(quick_report):
 
 
 def test_near_field_beats_distant_when_the_lamp_is_near(quick_report):
-    # The paper's motivation: with the lamp 0.15 m from the board centre the distant-light
-    # baseline is off by more than the lamp's distance, `full` by well under 1 %.
+    # The paper's motivation: with the lamp 0.15 m from the board centre a distant light cannot make
+    # the board's highlight (a plane under a distant light and viewer has one α: a constant specular),
+    # so the distant-light baseline is refused with that reason (before the sanity rules it was off by
+    # more than the lamp's distance); `full` is within well under 1 %.
     _, doc = quick_report
     rows = doc["experiments"]["near_vs_distant"]["rows"]
     nearest = min(r["lamp_distance_m"] for r in rows)
     by = {r["method"]: r for r in rows if r["lamp_distance_m"] == nearest}
-    assert by["distant"]["lamp_position_error_pct"] > 50.0
+    assert by["distant"]["status"] == "failed" and by["distant"]["error"].startswith("estimate: explains: ")
     assert by["full"]["lamp_position_error_pct"] < 1.0
 
 
