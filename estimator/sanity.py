@@ -14,9 +14,11 @@ satisfy"):
 ``finite``
     Lamp, Ks and σ finite, Ks ≥ 0, σ > 0.
 ``roughness-range``
-    σ strictly inside the lobe's range (0.0001, π/2) rad, the bounds of
-    ``full``'s fit (:func:`~nearlight.estimator.several.lamp_bounds`): a σ at a
-    bound is the fit running out of room, not a measurement.
+    The reported (Torrance–Sparrow) σ strictly inside (0.0001, π/2) rad: a
+    spread of facet angles beyond π/2 means nothing, and 0.0001 is the floor of
+    ``full``'s roughness (:func:`~nearlight.estimator.several.lamp_bounds`); a
+    σ at either end is a fit out of room (or the paper's regression line
+    gone flat), not a measurement.
 ``reach``
     The lamp within :data:`REACH` × the camera–highlight distance of the
     highlight's peak point (or within the method's own ``t_max`` option when
@@ -85,7 +87,8 @@ EXPLAINED_MIN = 0.5
 SIGNIFICANCE_MIN = 10.0
 #: ``located``: the largest 1-σ lamp uncertainty over the lamp–highlight distance.
 LOCATED_MAX = 1.0
-#: ``roughness-range``: the lobe's range of σ (rad), ``full``'s fit bounds.
+#: ``roughness-range``: the range of the Torrance–Sparrow σ (rad) an estimate may report: a spread of facet
+#: angles beyond π/2 means nothing, and 1e-4 is the floor of ``full``'s roughness (its fit's lower bound).
 ROUGHNESS_RANGE = (1e-4, np.pi / 2)
 #: Relative closeness to a bound of ``ROUGHNESS_RANGE`` that counts as at it (the fit's own tolerance is 1e-8).
 AT_BOUND = 1e-6
