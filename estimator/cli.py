@@ -72,6 +72,10 @@ def run(args: argparse.Namespace) -> int:
             print(args.json)
         sys.stdout.flush()
         return 1
+    if "partial" in est.diagnostics:  # Ks refused, lamp and σ kept (estimator.sanity)
+        partial = est.diagnostics["partial"]
+        print(f"nearlight estimate: note: {partial['quantity']} refused ({partial['rule']}): {partial['reason']}",
+              file=sys.stderr)
     pos = ", ".join(f"{v:.4f}" for v in est.lamp_position)
     ks = ", ".join(f"{v:.4g}" for v in est.ks)
     # the result on stdout: the estimate, then the path of each file written

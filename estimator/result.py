@@ -114,6 +114,23 @@ class Estimate:
             status="failed",
         )
 
+    def without_ks(self, rule: str, reason: str) -> Estimate:
+        """This estimate with Ks refused (NaN) and its lamp and σ kept: ``diagnostics["partial"]`` says which
+        rule and why, ``diagnostics["refused"]["ks"]`` keeps the method's Ks; ``status`` stays ``"ok"``.
+
+        Parameters
+        ----------
+        rule : str
+            The broken rule's name (:mod:`nearlight.estimator.sanity`).
+        reason : str
+            One line with the numbers that broke it.
+        """
+        return dataclasses.replace(
+            self, ks=np.full(3, np.nan),
+            diagnostics={**self.diagnostics, "partial": {"quantity": "ks", "rule": rule, "reason": reason},
+                         "refused": {"ks": self.ks}},
+        )
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict: lists for arrays, floats for scalars (NaN kept as None)."""
         return {

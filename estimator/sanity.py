@@ -38,7 +38,12 @@ satisfy"):
     of the observed highlight: ``1 − Σ(S − Ŝ)² / Σ S²`` over the highlight's
     pixels and channels, less those with a reading at the sensor's saturation
     (:func:`clipped`). Zero means the estimate predicts no highlight (e.g.
-    Ks ≈ 0), negative one far brighter than observed. With several separate
+    Ks ≈ 0), negative one far brighter than observed. When Ks alone breaks
+    it (the re-synthesis with Ks rescaled per channel explains at least
+    :data:`EXPLAINED_MIN` of the highlight's variation about its mean,
+    :func:`ks_scaled_fraction`), only Ks is refused
+    (rule ``ks-scale``: Ks NaN, lamp and σ kept, status ``ok``;
+    :meth:`~nearlight.estimator.Estimate.without_ks`). With several separate
     highlights, a one-lamp estimate is held to the one it explains best
     (:func:`own_highlight`), for this rule and ``in-front``.
 ``evident``
@@ -285,6 +290,28 @@ def _explains(est: Estimate, explained: float) -> Failure | None:
     return None
 
 
+def ks_scaled_fraction(obs: Observation, region: np.ndarray, predicted: np.ndarray) -> float:
+    """The share of the highlight's variation the re-synthesis's shape explains, its Ks rescaled per channel:
+    ``1 − Σ(S − k·Ŝ)² / Σ(S − S̄)²`` over ``region``, ``k = Σ S Ŝ / Σ Ŝ²`` (Ŝ is linear in Ks), ``S̄`` the
+    highlight's mean per channel. Only the lamp and σ are held to it; a flat re-synthesis (``distant`` on a
+    plane) explains none of the variation, whatever its scale."""
+    S, S_hat = obs.specular[region], predicted[region]
+    k = np.nan_to_num(np.sum(S * S_hat, axis=0) / np.sum(S_hat**2, axis=0))
+    return float(1.0 - np.sum((S - k * S_hat) ** 2) / np.sum((S - S.mean(axis=0)) ** 2))
+
+
+def _ks_only(est: Estimate, obs: Observation, region: np.ndarray, predicted: np.ndarray,
+             explained: float) -> Failure | None:
+    """``explains`` broken by Ks alone: with Ks rescaled the lamp and σ explain the highlight
+    (:func:`ks_scaled_fraction`), so only Ks is refused (rule ``ks-scale``)."""
+    scaled = ks_scaled_fraction(obs, region, predicted)
+    if not scaled >= EXPLAINED_MIN:
+        return None
+    return Failure("ks-scale", f"Ks {_vec(est.ks)} re-synthesises {explained:.3g} of the observed highlight; "
+                               f"rescaled, the lamp and σ explain {scaled:.3g} of its variation: Ks refused, lamp "
+                               "and σ kept")
+
+
 def _located(est: Estimate, obs: Observation) -> Failure | None:
     if est.covariance is None:
         return None
@@ -343,11 +370,13 @@ def check(capture: Capture, est: Estimate, obs: Observation, options: Mapping[st
             if failed is not None:
                 return failed
         if len(est.found_lamps()) == 1:
-            region, explained = own_highlight(capture, est, obs, several=several)
+            predicted = predicted_specular(est, obs)
+            region, explained = own_highlight(capture, est, obs, predicted=predicted, several=several)
             if region.any():
-                for failed in (_in_front(est, obs, region), _explains(est, explained)):
-                    if failed is not None:
-                        return failed
+                if (failed := _in_front(est, obs, region)) is not None:
+                    return failed
+                if (failed := _explains(est, explained)) is not None:
+                    return _ks_only(est, obs, region, predicted, explained) or failed
         return _located(est, obs)
 
 
@@ -378,7 +407,11 @@ def review(capture: Capture, est: Estimate, options: Mapping[str, Any]) -> Estim
     if len(est.found_lamps()) == 1:  # every one-lamp method says so on several highlights
         est = with_warning(est, several)
     failed = check(capture, est, obs, options, several=several is not None)
-    return est if failed is None else est.refused(*failed)
+    if failed is None:
+        return est
+    if failed.rule == "ks-scale":  # the lamp and σ stand; Ks alone is not supported
+        return est.without_ks(*failed)
+    return est.refused(*failed)
 
 
 def _vec(v: np.ndarray) -> str:

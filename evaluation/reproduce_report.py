@@ -14,11 +14,19 @@ import numpy as np
 
 
 def _vec(v: Any, digits: int = 3) -> str:
+    """``(x, y, z)``; ``n/a`` for a vector the sanity rules refused (its numbers NaN, ``None`` in JSON)."""
+    if any(x is None for x in v):
+        return "n/a"
     return "(" + ", ".join(f"{x:.{digits}f}" for x in v) + ")"
 
 
 def _num(x: Any, fmt: str = ".3g") -> str:
     return "n/a" if x is None else format(x, fmt)
+
+
+def _pct(x: Any) -> str:
+    """A relative error as ``12.3 %``, ``n/a`` when there is none (a refused Ks)."""
+    return "n/a" if x is None else f"{100 * x:.1f} %"
 
 
 def _table(header: list[str], rows: list[list[str]]) -> str:
@@ -104,8 +112,8 @@ def object_section(doc: dict[str, Any], key: str, heading: str) -> str:
         for m, r in methods.items():
             rows.append([f"`{m}`{suffix}", *(_failed(r, 7) or [
                 _vec(r["lamp_position"]), f"{1000 * r['lamp_position_error_m']:.1f}", f"{r['lamp_position_error_pct']:.2f} %",
-                f"{r['sigma']:.4f}", _vec(r["ks_in_truth_units"], 3), f"{100 * r['sigma_rel_error']:.1f} %",
-                f"{100 * r['ks_rel_error']:.1f} %"])])  # fmt: skip
+                f"{r['sigma']:.4f}", _vec(r["ks_in_truth_units"], 3), _pct(r["sigma_rel_error"]),
+                _pct(r["ks_rel_error"])])])  # fmt: skip
     diagnostic = "".join(
         f"Rows marked ({v}) are a DIAGNOSTIC, not the paper's experiment: the same scene with "
         + ", ".join(f"`{k}: {val}`" for k, val in d["set"].items())

@@ -20,7 +20,7 @@ from nearlight.estimator import Estimate, estimate
 from nearlight.estimator.observation import observe
 from nearlight.errors import UserError
 from nearlight.estimator.sanity import (EXPLAINED_MIN, REACH, UnsupportedEstimate, check, explained_fraction,
-                                        own_highlight, review)
+                                        ks_scaled_fraction, own_highlight, predicted_specular, review)
 from nearlight.evaluation.tasks import run_method
 from nearlight.generator.analytic import DEFAULT_BSDF, DEFAULT_LAMP_POSITION, analytic_capture
 
@@ -64,8 +64,12 @@ def test_each_rule_refuses_what_breaks_it(capture):
     assert rule(capture, truth(lamp_position=far), t_max=2 * REACH * obs.scale) != "reach"  # a wider t_max widens it
     below = anchor - (lamp - anchor)  # the lamp mirrored through the highlight point: behind the surface
     assert rule(capture, truth(lamp_position=below)) == "in-front"
-    assert rule(capture, truth(ks=1e-6 * KS)) == "explains"  # the cylinder's Ks ~ 1e-6 (issue 42)
-    assert rule(capture, truth(ks=3 * KS)) == "explains"  # 3x too bright: 1 - 4 = -3 explained
+    # Ks alone wrong: the lamp and σ still explain the highlight's shape, so only Ks is refused (ks-scale)
+    assert rule(capture, truth(ks=1e-6 * KS)) == "ks-scale"  # the cylinder's Ks ~ 1e-6 (issue 42)
+    assert rule(capture, truth(ks=3 * KS)) == "ks-scale"  # 3x too bright: 1 - 4 = -3 explained
+    # the shape wrong too (σ 0.4 against 0.1): the whole estimate is refused
+    assert rule(capture, truth(ks=1e-6 * KS, sigma=0.4)) == "explains"
+    assert rule(capture, truth(sigma=0.4)) == "explains"
     d = np.linalg.norm(lamp - anchor)
     loose = np.diag([4 * d**2, d**2 / 4, d**2 / 4, 1e-6])  # 2d along x: the data do not place the lamp
     assert rule(capture, truth(covariance=loose)) == "located"
@@ -82,24 +86,36 @@ def test_explained_fraction_is_one_minus_relative_residual(capture):
     assert EXPLAINED_MIN == 0.5  # so Ks within a factor of 1 ± 0.707 of the truth passes, no further
 
 
+def test_an_estimate_wrong_only_in_ks_keeps_its_lamp_and_sigma(capture):
+    est = review(capture, truth(ks=3 * KS), {})
+    assert est.ok and np.all(np.isnan(est.ks)) and est.sigma == SIGMA
+    np.testing.assert_array_equal(est.lamp_position, DEFAULT_LAMP_POSITION)
+    assert est.diagnostics["partial"]["quantity"] == "ks" and est.diagnostics["partial"]["rule"] == "ks-scale"
+    np.testing.assert_array_equal(est.diagnostics["refused"]["ks"], 3 * KS)
+    obs = observe(capture)
+    # rescaled, the truth's shape is the highlight's: all of its variation (float32 storage aside)
+    assert ks_scaled_fraction(obs, obs.mask, predicted_specular(truth(ks=3 * KS), obs)) == pytest.approx(1, abs=1e-5)
+
+
 def test_refused_estimate_has_no_numbers_and_says_why(capture):
-    est = review(capture, truth(ks=1e-6 * KS), {})
+    est = review(capture, truth(ks=1e-6 * KS, sigma=0.4), {})
     assert est.status == "failed" and not est.ok
     assert np.all(np.isnan(est.lamp_position)) and np.all(np.isnan(est.ks)) and np.isnan(est.sigma)
     assert est.diagnostics["failure"]["rule"] == "explains"
     assert "explains" in est.diagnostics["failure"]["reason"]
     np.testing.assert_array_equal(est.diagnostics["refused"]["ks"], 1e-6 * KS)
+    assert est.diagnostics["refused"]["sigma"] == 0.4
     doc = json.loads(json.dumps(est.to_dict()))
     assert doc["status"] == "failed" and doc["lamp_position"] == [None, None, None]
 
 
 
-#: A plug-in that reports the analytic capture's lamp with Ks a millionth of the truth's.
+#: A plug-in that reports the analytic capture's lamp with Ks a millionth of the truth's and σ 0.4 (the truth's 0.1).
 DIM_GUESS = f"""
 from nearlight.estimator import Estimate
 
 def dim_guess(capture):
-    return Estimate(method="x", lamp_position={list(DEFAULT_LAMP_POSITION)}, ks={(1e-6 * KS).tolist()}, sigma={SIGMA})
+    return Estimate(method="x", lamp_position={list(DEFAULT_LAMP_POSITION)}, ks={(1e-6 * KS).tolist()}, sigma=0.4)
 """
 
 
@@ -176,3 +192,19 @@ def test_no_good_estimate_of_the_study_design_is_refused():
                 good += 1
                 assert check(cap, est, obs, {}) is None, (shape, d, sigma, noisy, method, err)
     assert good >= 16  # full alone is within 5 % on all 16 captures
+
+
+def test_estimate_cli_notes_a_refused_ks_and_prints_the_lamp(tmp_path, capsys, monkeypatch):
+    cap = tmp_path / "cap"
+    write_capture(analytic_capture(width=48, height=36), cap)
+    (tmp_path / "bright.py").write_text(f"""
+from nearlight.estimator import Estimate
+
+def guess(capture):
+    return Estimate(method="x", lamp_position={list(DEFAULT_LAMP_POSITION)}, ks={(3 * KS).tolist()}, sigma={SIGMA})
+""")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert main(["estimate", str(cap), "--method", "bright:guess"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.startswith("nearlight estimate: note: ks refused (ks-scale): ")
+    assert captured.out.startswith("bright:guess: lamp (0.0500, 0.1500, 0.3500) m  ks (nan, nan, nan)")
