@@ -116,15 +116,8 @@ class Estimate:
 
     def without_ks(self, rule: str, reason: str) -> Estimate:
         """This estimate with Ks refused (NaN) and its lamp and σ kept: ``diagnostics["partial"]`` says which
-        rule and why, ``diagnostics["refused"]["ks"]`` keeps the method's Ks; ``status`` stays ``"ok"``.
-
-        Parameters
-        ----------
-        rule : str
-            The broken rule's name (:mod:`nearlight.estimator.sanity`).
-        reason : str
-            One line with the numbers that broke it.
-        """
+        rule and why (``rule`` and ``reason`` as for :meth:`refused`), ``diagnostics["refused"]["ks"]`` keeps
+        the method's Ks; ``status`` stays ``"ok"``."""
         return dataclasses.replace(
             self, ks=np.full(3, np.nan),
             diagnostics={**self.diagnostics, "partial": {"quantity": "ks", "rule": rule, "reason": reason},
