@@ -31,7 +31,8 @@ changes of one render. So on a plane (α spreads by less than
 :data:`PLANE_ALPHA_SPREAD` over the specular pixels) ``l`` stays at ``l0``
 and σ at :data:`PLANE_SIGMA`, neither being determined by the data, and
 only Ks is fitted; ``diagnostics["undetermined"]`` then names them, and the
-evaluation scores no σ error for such an estimate.
+rules every estimate passes refuse it (:mod:`nearlight.estimator.sanity`,
+``determined``): its lamp is a placeholder.
 
 Stability: a ±1-ulp float32 change of every image (stack, P, N) moves the
 light direction by at most 1e-5 rad, ``lamp_position`` by at most 1e-5 of

@@ -39,7 +39,6 @@ from .paper import RaySearch, ray_stage, stage_one
 from .separation import SEPARATION_METHODS
 from .several import (MAX_LAMPS, best_short_fit, final_fit, loss_floor, several_estimate,
                       short_fit)
-from .highlights import several_highlights_warning
 from .pixels import weighted_fit_pixels
 from .result import Estimate
 from ..physics.reflectance import LOBES, finite, normalize, peak_shape, roughness_for_ts_sigma, shading_geometry, ts_sigma
@@ -258,13 +257,6 @@ def peak_ray_starts(init: Estimate, obs: Observation, *, n_starts: int) -> list[
     return starts
 
 
-def _with_warning(diagnostics: dict, warning: str | None) -> dict:
-    """``diagnostics`` with ``warning`` appended to its ``warnings`` list (no key at all without one)."""
-    if warning is None:
-        return diagnostics
-    return {**diagnostics, "warnings": [*diagnostics.get("warnings", []), warning]}
-
-
 def _chi2(model: PointLampModel, x: np.ndarray) -> float:
     """Sum of squared (weighted) residuals at ``x``."""
     return float(np.sum(np.square(model.residuals(x))))
@@ -425,9 +417,9 @@ def full_estimate(
         Number of point lamps fitted: 1 (the default: the fit above), K ≤
         :data:`~nearlight.estimator.several.MAX_LAMPS`, or ``"auto"`` (the count
         of least BIC); see :func:`~nearlight.estimator.several.several_estimate`.
-        With one lamp, an image of several separate highlights
-        (:func:`~nearlight.estimator.highlights.segment_highlights`) adds a line to
-        ``diagnostics["warnings"]``.
+        With one lamp, an image of several separate highlights gets a line in
+        ``diagnostics["warnings"]`` from the rules every estimate passes
+        (:func:`~nearlight.estimator.sanity.review`), as every one-lamp method does.
     **init_options
         Options of :func:`~nearlight.estimator.paper.stage_one`: ``threshold``
         for the observation, the others for its ray stage, which runs on
@@ -532,9 +524,7 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
         sigma=per_roughness * x[6],
         covariance=cov4,
         stages={"init": init.stages["init"], "full": stage},
-        diagnostics=_with_warning(
-            _with_warning({**init.diagnostics, "n_specular_pixels": int(obs.mask.sum()),
-                           "n_start_pixels": int(start.mask.sum())}, several_highlights_warning(obs)),
-            no_specular_warning(evidence_specular)),
+        diagnostics={**init.diagnostics, "n_specular_pixels": int(obs.mask.sum()),
+                     "n_start_pixels": int(start.mask.sum())},
         timings=timings,
-    ), obs
+    ).with_warning(no_specular_warning(evidence_specular)), obs

@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy import ndimage
 
-from .observation import Observation
+from .observation import Observation, shared
 from ..physics.reflectance import channel_sum
 
 #: Smoothing of the specular image before segmentation, pixels (Gaussian σ): averages
@@ -145,8 +145,15 @@ def highlights_of(obs: Observation) -> Highlights:
 def several_highlights_warning(obs: Observation) -> str | None:
     """The warning of a one-lamp method on an observation with several separate highlights, else None.
 
-    Counts :func:`highlights_of`'s peaks without its watershed (which pixels belong to each).
+    Counts :func:`highlights_of`'s peaks without its watershed (which pixels belong to each); once per
+    observation inside :func:`~nearlight.estimator.observation.shared_observations` (the method and the sanity
+    rules both ask).
     """
+    return shared(_several_highlights_warning, obs)
+
+
+def _several_highlights_warning(obs: Observation) -> str | None:
+    """:func:`several_highlights_warning`, made afresh."""
     n = len(_highlight_peaks(obs.specular, obs.located)[2])
     if n < 2:
         return None

@@ -50,6 +50,7 @@ from scipy import ndimage
 
 from ..physics.polarization import analyzer_matrix, aolp, linear_stokes
 from ..physics.reflectance import any_channel
+from .observation import shared
 from .separation import specular_gain
 
 #: Relative floor of the specular's standard deviation, as a fraction of its peak.
@@ -140,7 +141,15 @@ def camera_noise(capture: Any, *, surface: np.ndarray | None = None) -> CameraNo
     surface : ndarray of bool, shape (H, W), optional
         Pixels whose residuals measure it (default: the capture's surface);
         at most :data:`NOISE_PIXELS` of them, every k-th in raster order.
+
+    Made once per capture and ``surface`` inside
+    :func:`~nearlight.estimator.observation.shared_observations` (the method's fit and the sanity rules).
     """
+    return shared(_camera_noise, capture, surface)
+
+
+def _camera_noise(capture: Any, surface: np.ndarray | None) -> CameraNoise | None:
+    """:func:`camera_noise`, made afresh."""
     sensor = getattr(capture, "sensor", None)
     if sensor is not None:
         sat, well = _sensor_field(sensor, "saturation"), _sensor_field(sensor, "full_well")

@@ -14,7 +14,8 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import dataclasses
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from typing import TypeVar
 
 import numpy as np
 
@@ -25,6 +26,8 @@ from .separation import separate_capture
 from ..capture.silhouette import check_silhouette
 from ..physics.camera import camera_rays, project
 from ..physics.reflectance import channel_sum, every_channel, normalize
+
+T = TypeVar("T")
 
 #: Default specular mask threshold, fraction of the peak pixel's mean specular (:func:`observe`).
 THRESHOLD = 0.05
@@ -557,26 +560,41 @@ def _peak_pixel(lum: np.ndarray, usable: np.ndarray) -> tuple[int, int]:
     return int(rows[k]), int(cols[k])
 
 
-#: The observations made inside :func:`shared_observations`, by (capture id, separation, threshold): the
-#: capture itself is kept beside its observation, so its id cannot be reused while the entry lives.
+#: What was computed inside :func:`shared_observations`, by (function, the ids of its arguments, its options): the
+#: arguments themselves are kept beside the value, so their ids cannot be reused while the entry lives.
 _SHARED: contextvars.ContextVar[dict | None] = contextvars.ContextVar("nearlight_observations", default=None)
 
 
 @contextlib.contextmanager
 def shared_observations() -> Iterator[None]:
-    """Within the block, :func:`observe` of one capture object with the same options is made once.
+    """Within the block, :func:`observe` of one capture object with the same options is made once, and so is
+    each computation made through :func:`shared`.
 
     :func:`nearlight.estimator.estimate` runs a method and then the sanity
     rules (:mod:`nearlight.estimator.sanity`) inside one block, so the rules
-    read the observation the method made (at 640×480, ~70 ms not spent
-    twice). Only for the length of one call: a capture whose arrays are
-    changed in place between calls is observed afresh.
+    read the observation, the camera noise and the highlight count the method
+    made (at 640×480, ~70 ms not spent twice). Only for the length of one
+    call: a capture whose arrays are changed in place between calls is
+    observed afresh.
     """
     token = _SHARED.set({})
     try:
         yield
     finally:
         _SHARED.reset(token)
+
+
+def shared(compute: Callable[..., T], *of: object, **options: object) -> T:
+    """``compute(*of, **options)``, once per function, argument objects and options inside
+    :func:`shared_observations` (every time outside it). The arguments are keyed by identity: only for
+    objects not changed in place within the block (a capture, its observation, its arrays)."""
+    store = _SHARED.get()
+    if store is None:
+        return compute(*of, **options)
+    key = (compute, *map(id, of), *sorted(options.items()))
+    if key not in store:
+        store[key] = (of, compute(*of, **options))
+    return store[key][1]
 
 
 def observe(capture: Capture, *, separation: str = "fit", threshold: float = THRESHOLD) -> Observation:
@@ -600,13 +618,7 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = THR
         relative to the image (:func:`check_silhouette`), NaNs at surface pixels, no specular pixel above
         the threshold, or a peak on the image border.
     """
-    shared = _SHARED.get()
-    if shared is None:
-        return _observe(capture, separation=separation, threshold=threshold)
-    key = (id(capture), separation, float(threshold))
-    if key not in shared:
-        shared[key] = (capture, _observe(capture, separation=separation, threshold=threshold))
-    return shared[key][1]
+    return shared(_observe, capture, separation=separation, threshold=float(threshold))
 
 
 def _observe(capture: Capture, *, separation: str, threshold: float) -> Observation:

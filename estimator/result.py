@@ -124,6 +124,14 @@ class Estimate:
                          "refused": {"ks": self.ks}},
         )
 
+    def with_warning(self, warning: str | None) -> Estimate:
+        """This estimate with ``warning`` appended to ``diagnostics["warnings"]`` (itself when None or already
+        there)."""
+        warnings = self.diagnostics.get("warnings", [])
+        if warning is None or warning in warnings:
+            return self
+        return dataclasses.replace(self, diagnostics={**self.diagnostics, "warnings": [*warnings, warning]})
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict: lists for arrays, floats for scalars (NaN kept as None)."""
         return {

@@ -19,6 +19,15 @@ satisfy"):
     ``full``'s roughness (:func:`~nearlight.estimator.several.lamp_bounds`); a
     σ at either end is a fit out of room (or the paper's regression line
     gone flat), not a measurement.
+``determined``
+    The method's own fit determines the light: an estimate whose
+    ``diagnostics["undetermined"]`` names ``light_direction`` (``distant`` on
+    a plane, where one constant per channel fits every direction and σ
+    alike) reports a placeholder, not an answer. Its lamp may still land
+    near the truth (``distant``'s placeholder is the mirror direction at the
+    peak, set at the camera's distance by convention: 2.8–4.2 % off on five
+    rows of the GSA screening whose lamp stood within 4 % of the camera's
+    distance), which is the convention's luck, not the data's support.
 ``reach``
     The lamp within :data:`REACH` × the camera–highlight distance of the
     highlight's peak point (or within the method's own ``t_max`` option when
@@ -61,7 +70,7 @@ satisfy"):
     anywhere within ±100 % of its distance is not located.
 
 Several-lamp estimates (``lamp_positions`` with more than one row) get the
-``finite``, ``roughness-range``, ``reach`` and ``located`` rules, each lamp
+``finite``, ``roughness-range``, ``determined``, ``reach`` and ``located`` rules, each lamp
 checked for ``finite`` and ``reach``; ``in-front`` and ``explains`` need the
 lamp each highlight pixel belongs to, which the estimate does not state.
 """
@@ -79,6 +88,7 @@ from .highlights import segment_highlights, several_highlights_warning
 from .noise import camera_noise, specular_variance
 from .observation import Observation, observe
 from .resynth import specular_at
+from .several import ROUGHNESS_RANGE
 from .result import Estimate
 
 #: ``reach``: lamp–highlight distance over the camera–highlight distance (the paper stage's default ``t_max``).
@@ -94,9 +104,6 @@ EXPLAINED_MIN = 0.5
 SIGNIFICANCE_MIN = 6.0
 #: ``located``: the largest 1-σ lamp uncertainty over the lamp–highlight distance.
 LOCATED_MAX = 1.0
-#: ``roughness-range``: the range of the Torrance–Sparrow σ (rad) an estimate may report: a spread of facet
-#: angles beyond π/2 means nothing, and 1e-4 is the floor of ``full``'s roughness (its fit's lower bound).
-ROUGHNESS_RANGE = (1e-4, np.pi / 2)
 #: Relative closeness to a bound of ``ROUGHNESS_RANGE`` that counts as at it (the fit's own tolerance is 1e-8).
 AT_BOUND = 1e-6
 
@@ -131,6 +138,15 @@ def _roughness(est: Estimate) -> Failure | None:
     if est.sigma <= lo * (1 + AT_BOUND) or est.sigma >= hi * (1 - AT_BOUND):
         return Failure("roughness-range", f"σ {est.sigma:.6g} rad at a bound of its range ({lo:g}, π/2): "
                                           "the fit ran out of room")
+    return None
+
+
+def _determined(est: Estimate) -> Failure | None:
+    undetermined = list(est.diagnostics.get("undetermined", ()))
+    if "light_direction" in undetermined:
+        return Failure("determined", f"the method's own fit leaves {', '.join(undetermined)} undetermined on this "
+                                     "capture (every value fits alike, as distant's on a plane), so its lamp is a "
+                                     "placeholder, not an estimate")
     return None
 
 
@@ -338,15 +354,6 @@ def observation(capture: Capture, options: Mapping[str, Any]) -> Observation:
     return observe(capture, **{k: options[k] for k in ("separation", "threshold") if k in options})
 
 
-def with_warning(est: Estimate, warning: str | None) -> Estimate:
-    """``est`` with ``warning`` in ``diagnostics["warnings"]`` (unchanged when None or already there)."""
-    warnings = est.diagnostics.get("warnings", [])
-    if warning is None or warning in warnings:
-        return est
-    est.diagnostics = {**est.diagnostics, "warnings": [*warnings, warning]}
-    return est
-
-
 def check(capture: Capture, est: Estimate, obs: Observation, options: Mapping[str, Any] | None = None, *,
           several: bool | None = None) -> Failure | None:
     """The first rule (module docstring) the estimate breaks, or None when it passes them all.
@@ -369,7 +376,8 @@ def check(capture: Capture, est: Estimate, obs: Observation, options: Mapping[st
     """
     options = options or {}
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        for failed in (_finite(est), _roughness(est), _evident(capture, obs), _reach(est, obs, options)):
+        for failed in (_finite(est), _roughness(est), _evident(capture, obs), _determined(est),
+                       _reach(est, obs, options)):
             if failed is not None:
                 return failed
         if len(est.found_lamps()) == 1:
@@ -408,7 +416,7 @@ def review(capture: Capture, est: Estimate, options: Mapping[str, Any]) -> Estim
         return est.refused("observable", f"the rules cannot observe the capture's highlight: {exc}")
     several = several_highlights_warning(obs)
     if len(est.found_lamps()) == 1:  # every one-lamp method says so on several highlights
-        est = with_warning(est, several)
+        est = est.with_warning(several)
     failed = check(capture, est, obs, options, several=several is not None)
     if failed is None:
         return est

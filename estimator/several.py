@@ -60,15 +60,14 @@ from collections.abc import Iterable
 from typing import Any, NamedTuple
 
 import numpy as np
-from scipy import ndimage
 from scipy.optimize import nnls
 
 from ..capture import Capture
 from ..errors import UserError
 from ..physics.polarization import specular_aolp
-from ..physics.reflectance import LOBES, channel_sum, peak_shape, roughness_for_ts_sigma, ts_sigma
+from ..physics.reflectance import LOBES, peak_shape, roughness_for_ts_sigma, ts_sigma
 from .fitting import log_regression, robust_fit
-from .highlights import HIGHLIGHT_DIP, HIGHLIGHT_FLOOR, Highlights, highlights_of, segment_highlights
+from .highlights import HIGHLIGHT_FLOOR, Highlights, highlights_of, segment_highlights
 from .lobes import FAMILIES
 from .observation import Observation
 from .paper import RaySearch, fast_search, t_search_defaults
@@ -416,6 +415,12 @@ def _region_start(obs: Observation, region: np.ndarray, std: np.ndarray | None, 
     return best_short_fit(model, starts(init, sub, n_starts=n_starts), obs.scale)[0]["x"]
 
 
+#: The range of the roughness parameter the lamp fits may reach (rad for Torrance–Sparrow): a spread of facet
+#: angles beyond π/2 means nothing; 1e-4 keeps the lobe's width positive, far below any material the benchmark
+#: renders. The sanity rules refuse a reported σ at either end (:mod:`nearlight.estimator.sanity`, ``roughness-range``).
+ROUGHNESS_RANGE = (1e-4, np.pi / 2)
+
+
 def lamp_bounds(n_params: int) -> tuple[np.ndarray, np.ndarray]:
     """Bounds of the parameters ``(l₁, c₁, …, l_K, c_K, a)`` of K lamps.
 
@@ -427,12 +432,12 @@ def lamp_bounds(n_params: int) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     lower, upper : ndarray, shape (n_params,)
-        Positions free (m), colours ≥ 0, roughness in [1e-4, π/2].
+        Positions free (m), colours ≥ 0, roughness in :data:`ROUGHNESS_RANGE`.
     """
     colour = colour_columns(n_params)
     lower = np.where(colour, 0.0, -np.inf)
     upper = np.full(n_params, np.inf)
-    lower[-1], upper[-1] = 1e-4, np.pi / 2
+    lower[-1], upper[-1] = ROUGHNESS_RANGE
     return lower, upper
 
 

@@ -564,8 +564,9 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
         NaN; NaN rules:
 
         - a σ the estimator declares undetermined
-          (``estimate.diagnostics["undetermined"]``, e.g. ``distant`` on a
-          plane) gets no σ error: any value fits the data;
+          (``estimate.diagnostics["undetermined"]``) gets no σ error: any value
+          fits the data (``distant`` on a plane also declares its light
+          direction undetermined, and is refused before it is scored);
         - a NaN or ±inf in the estimate's ``lamp_position`` makes every lamp
           metric NaN, and both specular RMSEs for a point lamp (a distant
           estimate's image comes from its directions); in ``ks`` or

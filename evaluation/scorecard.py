@@ -26,7 +26,6 @@ import json
 import math
 import sys
 import time
-import traceback
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -35,7 +34,6 @@ import numpy as np
 import pandas as pd
 
 from ..errors import UserError
-from ..estimator.sanity import UnsupportedEstimate
 from .metrics import ESTIMATE_COLUMNS, INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
 from .suite import INPUT, TRUTH, checksum_problems, read_manifest, strip_truth
 
@@ -76,12 +74,9 @@ def score_case(case: Mapping[str, Any], *, method: str, options: Mapping[str, An
         (NaN when not computed), ``runtime_s`` (s, the method alone). Never raises.
     """
     from ..capture import read_capture
-    from .tasks import run_method
+    from .tasks import blank_row, failed_row, run_method
 
-    row: dict[str, Any] = {"status": "ok", "error": ""}
-    row.update(dict.fromkeys(METRICS, math.nan))
-    row.update(dict.fromkeys(INFO_COLUMNS, math.nan))
-    row[LOBE_COLUMN] = ""
+    row = blank_row()
     stage = "read"
     try:
         seen = strip_truth(read_capture(Path(case["folder"]) / INPUT))
@@ -92,13 +87,8 @@ def score_case(case: Mapping[str, Any], *, method: str, options: Mapping[str, An
         row.update(estimate_columns(est))
         stage = "score"
         row.update(score(read_capture(Path(case["folder"]) / TRUTH), est))
-    except UnsupportedEstimate as exc:  # the method answered, the data do not support it: a failure, no number
-        row["status"] = "failed"
-        row["error"] = f"estimate: {exc}"
     except Exception as exc:  # a failing case is a row (a miss), not a crashed run
-        last = traceback.extract_tb(exc.__traceback__)[-1]
-        row["status"] = "error"
-        row["error"] = f"{stage}: {type(exc).__name__}: {' '.join(str(exc).split())} ({Path(last.filename).name}:{last.lineno})"
+        return failed_row(row, stage, exc)
     return row
 
 

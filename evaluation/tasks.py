@@ -64,6 +64,26 @@ def _crlb(clean: Any, task: Mapping[str, Any]) -> dict[str, float]:
     return specular_crlb(clean, noise_var=camera_noise_variance(clean.stack, noise=task["noise"]))
 
 
+def blank_row() -> dict[str, Any]:
+    """A row before any work: ``status`` ``"ok"``, every metric and information column NaN, no lobe."""
+    row: dict[str, Any] = {"status": "ok", "error": ""}
+    row.update(dict.fromkeys(METRICS, math.nan))
+    row.update(dict.fromkeys(INFO_COLUMNS, math.nan))
+    row[LOBE_COLUMN] = ""
+    return row
+
+
+def failed_row(row: dict[str, Any], stage: str, exc: Exception) -> dict[str, Any]:
+    """``row`` after ``exc`` at ``stage`` (a sweep's task or a scorecard's case): ``status`` ``"failed"`` for an
+    estimate the data do not support (:class:`UnsupportedEstimate`: the method answered, no number), else
+    ``"error"`` with the exception's one-line message and where it was raised."""
+    if isinstance(exc, UnsupportedEstimate):
+        return {**row, "status": "failed", "error": f"estimate: {exc}"}
+    last = traceback.extract_tb(exc.__traceback__)[-1]
+    return {**row, "status": "error",
+            "error": f"{stage}: {type(exc).__name__}: {' '.join(str(exc).split())} ({Path(last.filename).name}:{last.lineno})"}
+
+
 def run_task(task: Mapping[str, Any], *, renderer: Any, cache_dir: str | None) -> dict[str, Any]:
     """Run one task; return its row (metrics, or ``status="error"`` and the message).
 
@@ -77,10 +97,7 @@ def run_task(task: Mapping[str, Any], *, renderer: Any, cache_dir: str | None) -
     cache_dir : str or None
         Render cache (shared by all workers).
     """
-    row: dict[str, Any] = {"status": "ok", "error": ""}
-    row.update(dict.fromkeys(METRICS, math.nan))
-    row.update(dict.fromkeys(INFO_COLUMNS, math.nan))
-    row[LOBE_COLUMN] = ""
+    row = blank_row()
     stage = "render"
     try:
         clean = renderer.render(task["scene"], cache_dir=None if cache_dir is None else Path(cache_dir))
@@ -95,11 +112,6 @@ def run_task(task: Mapping[str, Any], *, renderer: Any, cache_dir: str | None) -
         row.update(score(clean, est))
         stage = "crlb"
         row.update(_crlb(clean, task))
-    except UnsupportedEstimate as exc:  # the method answered, the data do not support it: a failure, no number
-        row["status"] = "failed"
-        row["error"] = f"estimate: {exc}"
     except Exception as exc:  # a failing task is a row, not a crashed sweep
-        last = traceback.extract_tb(exc.__traceback__)[-1]
-        row["status"] = "error"
-        row["error"] = f"{stage}: {type(exc).__name__}: {' '.join(str(exc).split())} ({Path(last.filename).name}:{last.lineno})"
+        return failed_row(row, stage, exc)
     return row

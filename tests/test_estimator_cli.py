@@ -30,11 +30,11 @@ def test_estimate_writes_json_and_plot(capture_dir, tmp_path, capsys, method):
     out, png = tmp_path / "est.json", tmp_path / "est.png"
     argv = ["estimate", str(capture_dir), "--method", method, "--json", str(out), "--plot", str(png)]
     if method == "distant":
-        # a board under a distant light and viewer has one α: a constant specular, which explains none of this
-        # near highlight (its own diagnostics call the direction undetermined): refused, exit 1, no plot
+        # a board under a distant light and viewer has one α: every light direction fits its constant specular
+        # alike, and its own diagnostics say so (undetermined): refused, exit 1, no plot
         assert main(argv) == 1
         captured = capsys.readouterr()
-        assert captured.err.startswith("nearlight estimate: distant failed (explains): ")
+        assert captured.err.startswith("nearlight estimate: distant failed (determined): ")
         assert json.loads(out.read_text())["status"] == "failed" and not png.exists()
         return
     assert main(argv) == 0

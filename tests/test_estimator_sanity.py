@@ -146,6 +146,26 @@ def test_estimate_cli_reports_a_refused_estimate_with_exit_1(tmp_path, capsys, m
     assert captured.out.strip() == str(out)
 
 
+def test_a_lamp_the_method_calls_undetermined_is_refused_even_near_the_truth():
+    # distant on a board: one α over the plane, so every light direction and σ fit alike; its placeholder
+    # direction (the mirror ray at the peak) points within a degree of the lamp, but it is not an estimate
+    cap = analytic_capture(width=96, height=72)
+    raw = estimate(cap, method="distant", sanity=False)
+    assert raw.diagnostics["undetermined"] == ["light_direction", "sigma"]
+    obs = observe(cap)
+    peak = obs.P[obs.peak]
+    to_est, to_lamp = raw.lamp_position - peak, np.asarray(DEFAULT_LAMP_POSITION) - peak
+    cosine = np.dot(to_est, to_lamp) / np.linalg.norm(to_est) / np.linalg.norm(to_lamp)
+    assert np.degrees(np.arccos(min(cosine, 1.0))) < 2.0  # 0.51° measured; 2° leaves the peak a pixel or two
+    est = estimate(cap, method="distant")
+    assert est.status == "failed" and est.diagnostics["failure"]["rule"] == "determined"
+    assert "light_direction, sigma undetermined" in est.diagnostics["failure"]["reason"]
+    np.testing.assert_array_equal(est.diagnostics["refused"]["lamp_position"], raw.lamp_position)
+    # the rule reads the estimate's own word: the same numbers with nothing undetermined pass it
+    undeclared = check(cap, dataclasses.replace(raw, diagnostics={}), obs, {})
+    assert undeclared is None or undeclared.rule != "determined"
+
+
 def test_one_lamp_methods_warn_of_several_highlights():
     from nearlight.generator.analytic import analytic_capture_lamps
 

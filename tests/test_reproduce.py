@@ -112,14 +112,14 @@ def test_full_method_is_within_one_percent_on_the_paper_board(quick_report):
 
 def test_near_field_beats_distant_when_the_lamp_is_near(quick_report):
     # The paper's motivation: with the lamp 0.15 m from the board centre a distant light cannot make
-    # the board's highlight (a plane under a distant light and viewer has one α: a constant specular),
-    # so the distant-light baseline is refused with that reason (before the sanity rules it was off by
-    # more than the lamp's distance); `full` is within well under 1 %.
+    # the board's highlight (a plane under a distant light and viewer has one α: a constant specular, which
+    # fits every light direction alike), so the distant-light baseline is refused with that reason (before
+    # the sanity rules it was off by more than the lamp's distance); `full` is within well under 1 %.
     _, doc = quick_report
     rows = doc["experiments"]["near_vs_distant"]["rows"]
     nearest = min(r["lamp_distance_m"] for r in rows)
     by = {r["method"]: r for r in rows if r["lamp_distance_m"] == nearest}
-    assert by["distant"]["status"] == "failed" and by["distant"]["error"].startswith("estimate: explains: ")
+    assert by["distant"]["status"] == "failed" and by["distant"]["error"].startswith("estimate: determined: ")
     assert by["full"]["lamp_position_error_pct"] < 1.0
 
 
