@@ -78,7 +78,7 @@ import numpy as np
 
 from nearlight.estimator import METHODS, estimate
 from nearlight.estimator.observation import observe
-from nearlight.estimator.paper import RaySearch, fast_search, scan_search, t_search_defaults
+from nearlight.estimator.first_stage import RaySearch, fast_search, scan_search, t_search_defaults
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.noise import add_camera_noise
 

@@ -25,7 +25,8 @@ import time
 
 import numpy as np
 
-from nearlight.estimator.paper import Energy, alternating_minimisation, alternating_minimisation_reference, stage_one
+from nearlight.estimator.first_stage import stage_one
+from nearlight.estimator.paper import Energy, alternating_minimisation, alternating_minimisation_reference
 from nearlight.generator.analytic import analytic_capture
 
 

@@ -14,7 +14,8 @@ from ..errors import UserError, require_extra
 from .distant import distant_estimate
 from .full import full_estimate
 from .options import check_options
-from .paper import initial_estimate, paper_estimate
+from .first_stage import initial_estimate
+from .paper import paper_estimate
 from .result import Estimate
 from .observation import shared_observations
 from .sanity import review

@@ -64,8 +64,7 @@ from threadpoolctl import threadpool_limits
 
 from ..capture import Capture
 from ..errors import UserError
-from .fitting import log_regression, robust_fit
-from .full import LOSSES
+from .fitting import LOSSES, log_regression, robust_fit
 from .observation import Observation, observe
 from .options import Choice, Count, Fraction, Positive
 from .separation import SEPARATION_METHODS

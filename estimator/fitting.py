@@ -208,6 +208,8 @@ def _mad(r: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(r - np.median(r))))
 
 
+#: The losses :func:`robust_fit` takes: :func:`scipy.optimize.least_squares`' own.
+LOSSES = ("huber", "soft_l1", "linear", "cauchy", "arctan")
 #: ρ'(z) and ρ''(z) of scipy's losses, z = (residual / f_scale)².
 _LOSS_DERIVATIVES: dict[str, Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]] = {
     "soft_l1": lambda z: ((1 + z) ** -0.5, -0.5 * (1 + z) ** -1.5),

@@ -22,7 +22,6 @@ ray begins at the hole's filled point
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from typing import Annotated, Literal
 
@@ -31,19 +30,18 @@ from pydantic import AfterValidator, Field
 
 from ..capture import Capture
 from ..errors import UserError
-from .fitting import log_regression
-from .lobes import FAMILIES, log_derivatives, radiance
+from ..physics.reflectance import LOBES, peak_shape, roughness_for_ts_sigma, ts_sigma
+from .first_stage import ray_stage, stage_one
+from .fitting import LOSSES
+from .lobes import FAMILIES
 from .observation import THRESHOLD, Observation, observe
 from .options import Choice, Count, CountOrZero, Positive, forwards
-from .paper import RaySearch, ray_stage, stage_one
-from .separation import SEPARATION_METHODS
-from .several import (MAX_LAMPS, best_short_fit, final_fit, loss_floor, several_estimate,
-                      short_fit)
 from .pixels import weighted_fit_pixels
+from .pointlamp import (PointLampModel, best_short_fit, final_fit, loss_floor, peak_ray_starts, short_fit,
+                        start_observation)
 from .result import Estimate
-from ..physics.reflectance import LOBES, finite, normalize, peak_shape, roughness_for_ts_sigma, shading_geometry, ts_sigma
-
-LOSSES = ("huber", "soft_l1", "linear", "cauchy", "arctan")
+from .separation import SEPARATION_METHODS
+from .several import MAX_FITTED_LAMPS, several_estimate
 
 
 def _lobe_choice(value: str) -> str:
@@ -70,191 +68,12 @@ SPECULAR_EVIDENCE = 100.0
 #: ``full``'s ``lobe`` option.
 LobeChoice = Annotated[str, AfterValidator(_lobe_choice)]
 #: ``full``'s ``lamps`` option: a number of lamps, or ``auto``.
-LampCount = Annotated[int, Field(ge=1, le=MAX_LAMPS)] | Literal["auto"]
+LampCount = Annotated[int, Field(ge=1, le=MAX_FITTED_LAMPS)] | Literal["auto"]
 #: Pixel-weight models of ``full``'s ``noise`` option.
 NOISE_MODELS = ("none", "auto")
 
-
-class PointLampModel:
-    """Specular radiance of a point lamp (I = 1) at fixed pixels, with its Jacobian.
-
-    Parameters ``x = (x, y, z, Ks_R, Ks_G, Ks_B, a)``, ``a`` the lobe family's
-    own roughness (σ for Torrance–Sparrow); residuals are
-    ``(model − observed) / std``, flattened pixel-major ``[n · 3]``.
-
-    Parameters
-    ----------
-    P, N : ndarray, shape (n, 3)
-        Surface points (m) and unit normals.
-    camera : ndarray, shape (3,)
-    observed : ndarray, shape (n, 3)
-        Specular radiance.
-    lobe : str
-        A family of :data:`~nearlight.estimator.lobes.FAMILIES`.
-    std : ndarray, shape (n, 3), optional
-        Standard deviation of each observed value (radiance units); None: 1.
-    """
-
-    def __init__(self, P: np.ndarray, N: np.ndarray, camera: np.ndarray, observed: np.ndarray, *,
-                 lobe: str = "torrance_sparrow", std: np.ndarray | None = None):
-        self.P, self.N, self.camera, self.observed, self.lobe = P, N, camera, observed, lobe
-        self.std = std
-        self._inv = None if std is None else 1.0 / std
-        self.view = normalize(np.asarray(camera, dtype=float) - P)  # the lamp moves, the camera does not
-        self._at: tuple[np.ndarray, tuple] | None = None
-
-    def subset(self, rows: slice | np.ndarray) -> PointLampModel:
-        """The same model on some of its pixels (contiguous copies: a strided view slows every step of the fit)."""
-        def take(a: np.ndarray) -> np.ndarray:
-            return np.ascontiguousarray(a[rows])
-
-        return PointLampModel(take(self.P), take(self.N), self.camera, take(self.observed), lobe=self.lobe,
-                              std=None if self.std is None else take(self.std))
-
-    def with_lobe(self, lobe: str) -> PointLampModel:
-        """The same pixels and weights with another lobe family."""
-        return PointLampModel(self.P, self.N, self.camera, self.observed, lobe=lobe, std=self.std)
-
-    def _lobe(self, x: np.ndarray) -> tuple:
-        """``f = F / r²`` where lit (else 0), shape (n,), the geometry and where lit, at ``x``.
-
-        The last lamp's and roughness's are kept: the solver asks for the
-        residuals and then the Jacobian at the same point, which share them,
-        and the colours solved at that point (:meth:`linear_colours`) too.
-        """
-        key = x[[0, 1, 2, 6]]  # the lamp and the roughness: not the colour
-        if self._at is not None and np.array_equal(self._at[0], key):
-            return self._at[1]
-        g = shading_geometry(self.P, self.N, self.camera, x[:3], view=self.view)
-        lit = (g.cos_i > 0) & (g.cos_r > 0)
-        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            F = radiance(self.lobe, g.cos_i, g.cos_r, g.alpha, x[6])
-            f = np.where(lit, finite(F / g.r**2), 0.0)
-        self._at = (np.array(key, dtype=float), (f, g, lit))
-        return f, g, lit
-
-    def _weigh(self, r: np.ndarray) -> np.ndarray:
-        return r if self._inv is None else r * self._inv
-
-    def residuals(self, x: np.ndarray) -> np.ndarray:
-        f = self._lobe(x)[0]
-        return self._weigh(f[:, None] * x[3:6] - self.observed).ravel()
-
-    def jacobian(self, x: np.ndarray) -> np.ndarray:
-        """Analytic ``∂ residuals / ∂ x``, shape ``(n · 3, 7)`` (Fortran-ordered).
-
-        With ``h = (l + v)/|l + v|``, ``c = N·h``: ``∂r/∂L = l``,
-        ``∂c/∂L = (I − l lᵀ)(I − h hᵀ) N / (|l + v| r)``,
-        ``∂cos θi/∂L = (N − cos θi l) / r``, so
-        ``∂f/∂L = f (∂ln F/∂c · ∂c/∂L + ∂ln F/∂cos θi · ∂cos θi/∂L − 2 l / r)``
-        and ``∂f/∂a = f ∂ln F/∂a`` (:mod:`~nearlight.estimator.lobes`).
-        """
-        f, g, lit = self._lobe(x)
-        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            d_c, d_i, d_a = (np.where(lit, finite(d), 0.0)
-                             for d in log_derivatives(self.lobe, g.cos_i, g.cos_r, g.alpha, x[6]))
-        s = g.light + g.view
-        inv_s = 1.0 / np.sqrt(np.einsum("ij,ij->i", s, s))
-        h = s * inv_s[:, None]
-        w = (self.N - np.einsum("ij,ij->i", self.N, h)[:, None] * h) * inv_s[:, None]  # ∂c/∂L = (w − (w·l) l) / r
-        # ∂f/∂L = f/r · (d_c w + d_i N − (d_c w·l + d_i cos θi + 2) l)
-        along = d_c * np.einsum("ij,ij->i", w, g.light) + d_i * g.cos_i + 2.0
-        df_dL = (f / g.r)[:, None] * (d_c[:, None] * w + d_i[:, None] * self.N - along[:, None] * g.light)
-        # built parameter-major, (7, n, 3), and returned as its Fortran-ordered transpose: contiguous writes
-        # here, and the layout the solver's SVD (LAPACK) takes without a copy
-        ks = x[3:6]
-        J = np.empty((7, len(f), 3))
-        np.multiply(df_dL.T[:, :, None], ks, out=J[:3])
-        J[3:6] = 0.0
-        for m in range(3):
-            J[3 + m, :, m] = f
-        np.multiply((f * d_a)[:, None], ks, out=J[6])
-        if self._inv is not None:
-            J *= self._inv
-        return J.reshape(7, -1).T
-
-    def linear_colours(self, x: np.ndarray) -> np.ndarray:
-        """``x`` with the (weighted) non-negative least-squares colour for its lamp and roughness.
-
-        Per channel ``Ks = max(Σ w f o / Σ w f², 0)`` (``w = 1/std²``); a
-        channel the lamp does not light keeps ``x``'s.
-        """
-        f = self._lobe(x)[0]
-        wt = np.ones_like(self.observed) if self._inv is None else self._inv**2
-        fw = f[:, None] * wt
-        den = np.sum(fw * f[:, None], axis=0)
-        out = np.array(x, dtype=float)
-        out[3:6] = np.where(den > 0, np.maximum(np.sum(fw * self.observed, axis=0) / np.where(den > 0, den, 1.0), 0.0),
-                            x[3:6])
-        return out
-
-
 #: About how many pixels the multi-start's short fits use (every k-th of the fitted pixels).
 TRIAL_PIXELS = 500
-#: About how many specular pixels the start's t search and regressions use (:func:`start_observation`).
-START_PIXELS = 2000
-
-
-def start_observation(obs: Observation, n_pixels: int = START_PIXELS) -> Observation:
-    """``obs`` with its specular mask thinned to a square lattice of about ``n_pixels`` pixels, for the start.
-
-    The lattice's step is ``⌊√(n_mask / n_pixels)⌋`` pixels (1: the mask as
-    it is) and it passes through the peak pixel, so the thinned mask does not
-    depend on the order of the pixels and moves with the image only where
-    the mask's own edge moves. The start's E_p(t) and regressions
-    (:func:`~nearlight.estimator.paper.ray_stage`, :func:`peak_ray_starts`) on the
-    lattice cost ``1/step²`` of the whole mask's; the start only has to land
-    in the minimum's basin, which the multi-start and the short fits then
-    settle (see :func:`full_estimate`'s "Speed").
-
-    Parameters
-    ----------
-    obs : Observation
-    n_pixels : int
-        Target count; a mask of fewer than ``4 · n_pixels`` pixels is kept whole.
-
-    Returns
-    -------
-    Observation
-        A copy sharing ``obs``'s arrays but ``mask``, shape (H, W).
-    """
-    step = int(np.sqrt(int(obs.mask.sum()) / n_pixels))
-    if step <= 1:
-        return obs
-    i, j = obs.peak
-    lattice = np.zeros_like(obs.mask)
-    lattice[i % step::step, j % step::step] = True
-    return dataclasses.replace(obs, mask=obs.mask & lattice)
-
-
-def peak_ray_starts(init: Estimate, obs: Observation, *, n_starts: int) -> list[np.ndarray]:
-    """Starting points: the first stage's, then points on its peak ray, the middle distances first.
-
-    The peak ray's t is poorly determined (E_p(t) is flat when the ray misses
-    the lamp by a degree or two), so the fit also starts from ``n_starts``
-    distances between 0.1 and 3 × the camera–highlight distance (log-spaced),
-    each with Ks and σ from the regression line at that distance. They come
-    nearest the range's geometric middle first, since those reach the best
-    fit most often (all 240 one-lamp captures of the sensitivity study, for
-    0.39–1.5 ×) and :func:`~nearlight.estimator.several.best_short_fit` stops
-    once two starts agree.
-
-    Returns
-    -------
-    list of ndarray, shape (7,)
-        ``(x, y, z, Ks_R, Ks_G, Ks_B, σ)``, the first stage's first.
-    """
-    ray = RaySearch(obs)
-    starts = [np.concatenate([init.lamp_position, init.ks, [init.sigma]])]
-    distances = sorted(np.geomspace(0.1, 3.0, n_starts), key=lambda d: (round(abs(np.log(d / np.sqrt(0.3))), 9), d))
-    for t in np.array(distances) * obs.scale:
-        X, Y = ray.xy(np.array([t]))
-        try:
-            ks, sigma, _ = log_regression(X[0], Y[0])
-        except UserError:
-            continue
-        starts.append(np.concatenate([ray.lamp(t), ks, [sigma]]))
-    return starts
 
 
 def _chi2(model: PointLampModel, x: np.ndarray) -> float:
@@ -322,7 +141,7 @@ def full_estimate(
     short fits run on ~:data:`TRIAL_PIXELS` of the fitted pixels, until two
     agree, by variable projection (the colour solved linearly at every step, the
     solver moving lamp and roughness only:
-    :func:`~nearlight.estimator.several.short_fit`), and the model
+    :func:`~nearlight.estimator.pointlamp.short_fit`), and the model
     evaluates its geometry once per lamp and roughness for the residuals,
     the Jacobian and the solved colour. Only the final fit sees every fitted pixel
     (``max_pixels``), as before; it lands on the same minimum as the
@@ -411,17 +230,17 @@ def full_estimate(
         the start with the lowest least-squares cost after a short fit (on
         at most ~:data:`TRIAL_PIXELS` of the fitted pixels) wins, the starts
         tried until two reach the same lowest cost
-        (:func:`~nearlight.estimator.several.best_short_fit`; how many ran:
+        (:func:`~nearlight.estimator.pointlamp.best_short_fit`; how many ran:
         ``stages["full"]["n_short_fits"]``).
     lamps : int or "auto"
         Number of point lamps fitted: 1 (the default: the fit above), K ≤
-        :data:`~nearlight.estimator.several.MAX_LAMPS`, or ``"auto"`` (the count
+        :data:`~nearlight.estimator.several.MAX_FITTED_LAMPS`, or ``"auto"`` (the count
         of least BIC); see :func:`~nearlight.estimator.several.several_estimate`.
         With one lamp, an image of several separate highlights gets a line in
         ``diagnostics["warnings"]`` from the rules every estimate passes
         (:func:`~nearlight.estimator.sanity.review`), as every one-lamp method does.
     **init_options
-        Options of :func:`~nearlight.estimator.paper.stage_one`: ``threshold``
+        Options of :func:`~nearlight.estimator.first_stage.stage_one`: ``threshold``
         for the observation, the others for its ray stage, which runs on
         the lattice of :func:`start_observation`.
 
@@ -434,18 +253,18 @@ def full_estimate(
         own BSDF dict in ``stages["full"]["bsdf"]``. ``covariance``: 1-σ
         covariance of ``(x, y, z, σ)``; ``stages["full"]`` holds the 7 × 7
         covariance of ``(x, y, z, colour_r, colour_g, colour_b, roughness)``.
-        ``diagnostics``: the start's (:func:`~nearlight.estimator.paper.ray_stage`
+        ``diagnostics``: the start's (:func:`~nearlight.estimator.first_stage.ray_stage`
         on the lattice), with ``n_specular_pixels`` the whole mask's count and
         ``n_start_pixels`` the lattice's.
     """
     if loss not in LOSSES:
         raise UserError(f"option loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
-    if lamps != 1:
-        return several_estimate(capture, lamps=lamps, lobe=lobe, noise=noise, loss=loss, f_scale=f_scale,
-                                max_pixels=max_pixels, saturation=saturation, n_starts=n_starts,
-                                separation=separation, **init_options)
-    return one_lamp_fit(capture, lobe=lobe, noise=noise, loss=loss, f_scale=f_scale, max_pixels=max_pixels,
-                        saturation=saturation, n_starts=n_starts, separation=separation, **init_options)[0]
+    one, obs = one_lamp_fit(capture, lobe=lobe, noise=noise, loss=loss, f_scale=f_scale, max_pixels=max_pixels,
+                            saturation=saturation, n_starts=n_starts, separation=separation, **init_options)
+    if lamps == 1:
+        return one
+    return several_estimate(capture, one, obs, lamps=lamps, lobe=lobe, noise=noise, loss=loss, f_scale=f_scale,
+                            max_pixels=max_pixels, saturation=saturation, n_starts=n_starts, separation=separation)
 
 
 def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale: float | None, max_pixels: int,

@@ -7,7 +7,7 @@ to a peak by a watershed. ``full`` with several lamps starts one lamp at each
 highlight (:mod:`nearlight.estimator.several`); every one-lamp method's
 estimate carries :func:`several_highlights_warning` when there are several
 (:func:`nearlight.estimator.estimate`), and the paper's ray stage names them
-when its search fails (:func:`nearlight.estimator.paper.ray_stage`).
+when its search fails (:func:`nearlight.estimator.first_stage.ray_stage`).
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ satisfy"):
 ``roughness-range``
     The reported (Torrance–Sparrow) σ strictly inside (0.0001, π/2) rad: a
     spread of facet angles beyond π/2 means nothing, and 0.0001 is the floor of
-    ``full``'s roughness (:func:`~nearlight.estimator.several.lamp_bounds`); a
+    ``full``'s roughness (:func:`~nearlight.estimator.pointlamp.lamp_bounds`); a
     σ at either end is a fit out of room (or the paper's regression line
     gone flat), not a measurement.
 ``determined``
@@ -32,7 +32,7 @@ satisfy"):
     The lamp within :data:`REACH` × the camera–highlight distance of the
     highlight's peak point (or within the method's own ``t_max`` option when
     larger): the volume the paper's ray search scans (its default ``t_max``,
-    :func:`~nearlight.estimator.paper.t_search_defaults`). Farther than that
+    :func:`~nearlight.estimator.first_stage.t_search_defaults`). Farther than that
     a near-light capture cannot tell the lamp from a distant light; a method
     that answers farther is extrapolating.
 ``in-front``
@@ -88,7 +88,7 @@ from .highlights import segment_highlights, several_highlights_warning
 from .noise import camera_noise, specular_variance
 from .observation import Observation, observe
 from .resynth import specular_at
-from .several import ROUGHNESS_RANGE
+from .pointlamp import ROUGHNESS_RANGE
 from .result import Estimate
 
 #: ``reach``: lamp–highlight distance over the camera–highlight distance (the paper stage's default ``t_max``).

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..estimator import estimate
 from ..estimator.observation import observe, surface_at
-from ..estimator.paper import RaySearch, mirror_oracle_pixel
+from ..estimator.first_stage import RaySearch, mirror_oracle_pixel
 from ..generator.analytic import analytic_capture
 from ..physics.reflectance import ward_from_torrance_sparrow
 from .metrics import capture_name, one_lamp_position

@@ -66,10 +66,10 @@ import numpy as np
 
 from ..capture import Capture
 from ..errors import UserError
-from ..estimator.full import peak_ray_starts
+from ..estimator.first_stage import stage_one
 from ..estimator.options import Choice, Count, CountOrZero, Positive, forwards
-from ..estimator.paper import stage_one
 from ..estimator.pixels import fit_pixels
+from ..estimator.pointlamp import peak_ray_starts
 from ..estimator.result import Estimate
 from ..estimator.separation import SEPARATION_METHODS
 from ..physics.reflectance import specular_radiance
@@ -335,7 +335,7 @@ def render_compare_estimate(
         Extra starts on ``paper-init``'s peak ray, at ``n_starts`` distances
         log-spaced from 0.1 to 3 × the camera–highlight distance, each with
         the σ of the regression at that distance (``full``'s starts,
-        :func:`~nearlight.estimator.full.peak_ray_starts`). The loss is evaluated at
+        :func:`~nearlight.estimator.pointlamp.peak_ray_starts`). The loss is evaluated at
         every start and at ``paper-init``'s (one forward and backward pass
         each, :func:`rank_starts`); 0: ``paper-init``'s start alone.
     n_fits : int
@@ -347,7 +347,7 @@ def render_compare_estimate(
         one fit from ``paper-init``'s start (fits that stall on a plateau stop
         within a few iterations).
     **init_options
-        Options of :func:`~nearlight.estimator.paper.stage_one` (the start).
+        Options of :func:`~nearlight.estimator.first_stage.stage_one` (the start).
 
     Returns
     -------
@@ -362,7 +362,7 @@ def render_compare_estimate(
     Raises
     ------
     UserError
-        Bad input (see :func:`~nearlight.estimator.paper.stage_one`), or a
+        Bad input (see :func:`~nearlight.estimator.first_stage.stage_one`), or a
         Mitsuba that cannot differentiate (scalar fallback).
     """
     lobe = LOBES[bsdf]

@@ -8,9 +8,8 @@ from scipy.stats import chi2
 
 from nearlight.estimator import estimate, render_specular
 from nearlight.estimator.fitting import central_jacobian
-from nearlight.estimator.full import PointLampModel
-from nearlight.estimator import several
-from nearlight.estimator.several import best_short_fit, short_fit
+from nearlight.estimator import pointlamp
+from nearlight.estimator.pointlamp import PointLampModel, best_short_fit, short_fit
 from nearlight.generator.analytic import analytic_capture
 
 TS = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.06}
@@ -72,7 +71,7 @@ def test_short_fit_reaches_the_optimum_from_far_starts(along, sigma_factor):
     ([3.0, 2.0, 1.0], 3, 2),  # no two alike: every start, the least
 ])
 def test_best_short_fit_stops_once_its_best_is_found_twice(monkeypatch, costs, tried, winner):
-    monkeypatch.setattr(several, "short_fit", lambda model, x0, scale: {"cost": costs[int(x0[0])], "x": x0})
+    monkeypatch.setattr(pointlamp, "short_fit", lambda model, x0, scale: {"cost": costs[int(x0[0])], "x": x0})
     best, n = best_short_fit(None, (np.array([i]) for i in range(len(costs))), 1.0)
     assert (n, int(best["x"][0])) == (tried, winner)
 
@@ -182,7 +181,7 @@ def test_distant_baseline_is_worse_than_full_on_a_near_scene():
 
 
 def test_start_observation_thins_the_mask_to_a_lattice_through_the_peak():
-    from nearlight.estimator.full import start_observation
+    from nearlight.estimator.pointlamp import start_observation
     from nearlight.estimator.observation import observe
 
     obs = observe(analytic_capture(width=160, height=120, bsdf={**TS, "sigma": 0.1}))

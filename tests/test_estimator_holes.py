@@ -9,7 +9,7 @@ from scipy.ndimage import distance_transform_edt
 from nearlight.capture import Camera
 from nearlight.estimator import estimate
 from nearlight.estimator.observation import HOLE_RING_PX, enclosed_holes, observe
-from nearlight.estimator.paper import RaySearch, fast_search, initial_estimate
+from nearlight.estimator.first_stage import RaySearch, fast_search, initial_estimate
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.nuisances import observe as nuisances_observe
 from nearlight.generator.scene import Nuisances

@@ -6,15 +6,8 @@ import numpy as np
 import pytest
 
 from nearlight.estimator.observation import observe
-from nearlight.estimator.paper import (
-    Energy,
-    RaySearch,
-    alternating_minimisation,
-    fast_search,
-    initial_estimate,
-    scan_search,
-    stage_one,
-)
+from nearlight.estimator.first_stage import RaySearch, fast_search, initial_estimate, scan_search, stage_one
+from nearlight.estimator.paper import Energy, alternating_minimisation
 from nearlight.estimator.fitting import log_regression
 from nearlight.generator.analytic import analytic_capture
 

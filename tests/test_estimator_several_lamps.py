@@ -17,11 +17,12 @@ import pytest
 
 from nearlight.errors import UserError
 from nearlight.estimator import estimate
-from nearlight.estimator.full import PointLampModel
+from nearlight.estimator.pointlamp import PointLampModel
 from nearlight.estimator.fitting import central_jacobian
-from nearlight.estimator.paper import stage_one
+from nearlight.estimator.first_stage import stage_one
 from nearlight.estimator.highlights import highlights_of
-from nearlight.estimator.several import START_DISTANCES, START_SIGMAS, SeveralLampModel, ray_starts
+from nearlight.estimator.lampsum import SeveralLampModel
+from nearlight.estimator.several import START_DISTANCES, START_SIGMAS, ray_starts
 from nearlight.evaluation.metrics import lamp_scores
 from nearlight.generator.analytic import analytic_capture, analytic_capture_lamps
 from nearlight.generator.noise import add_camera_noise
@@ -80,7 +81,7 @@ def test_several_lamp_model_with_phases(rng):
     # differences of the residuals; the colours solved
     # linearly with the weights in (the model is still linear in them); and with beta_hat = each pixel's own
     # beta of a single lamp, the weight is 1: one lamp's plain residuals.
-    from nearlight.estimator.several import LampPhases
+    from nearlight.estimator.lampsum import LampPhases
     from nearlight.physics.polarization import specular_aolp
 
     one, std = _small_weighted_model(rng)
@@ -239,7 +240,7 @@ def test_project_out_handles_a_lamp_that_lights_almost_nothing():
     # columns were ~1e-155, their Gram entries denormal (2e-309); the normal equations returned inf
     # and the solver's SVD refused the Jacobian. The projection does not depend on a column's length:
     # it must equal the one on the same columns at unit scale, to float rounding.
-    from nearlight.estimator.several import project_out
+    from nearlight.estimator.pointlamp import project_out
 
     rng = np.random.default_rng(0)
     Jf, lit, shape = rng.normal(size=(300, 4)), rng.normal(size=(300, 3)), rng.normal(size=(300, 3))

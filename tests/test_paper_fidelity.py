@@ -82,7 +82,8 @@ def test_bounded_am_does_not_stall_where_the_printed_one_does():
     # On the exact mirror ray, started at half the true t (Ks, σ from the first stage): the
     # printed AM's ±1 mm steps stop at a coordinate-wise minimum far short (issue 11: 0.55·t);
     # the bounded profile search reaches t to within Δt and σ, Ks to 1e-3.
-    from nearlight.estimator.paper import Energy, alternating_minimisation, bounded_minimisation, stage_one
+    from nearlight.estimator.first_stage import stage_one
+    from nearlight.estimator.paper import Energy, alternating_minimisation, bounded_minimisation
 
     cap = analytic_capture(width=96, height=72, bsdf=TS, analyzer_angles_deg=None)
     init, obs = stage_one(cap, origin="mirror-oracle")
@@ -134,7 +135,8 @@ def test_fast_printed_am_walks_the_reference_walk(kwargs, space):
     # are BLAS dots rather than numpy's pairwise sums, so a trial step whose energy equals the
     # current one to the last bits may be halved in one and not the other (the halving count
     # may differ): measured ≤ 1.6e-8 relative in Ks, σ on these captures, 1e-14 typically.
-    from nearlight.estimator.paper import Energy, alternating_minimisation, alternating_minimisation_reference, stage_one
+    from nearlight.estimator.first_stage import stage_one
+    from nearlight.estimator.paper import Energy, alternating_minimisation, alternating_minimisation_reference
 
     cap = analytic_capture(width=96, height=72, **kwargs)
     init, obs = stage_one(cap)

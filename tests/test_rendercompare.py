@@ -54,7 +54,7 @@ def test_recovers_the_lamp_and_roughness_of_its_own_lobe(beckmann_board):
 @pytest.mark.render
 def test_gradient_matches_finite_differences():
     """Dr.Jit's gradient, through the BSDF and our Stokes rotation of the lamp's polarizer, against the loss itself."""
-    from nearlight.estimator.paper import stage_one
+    from nearlight.estimator.first_stage import stage_one
     from nearlight.rendercompare.lobes import LOBES
     from nearlight.rendercompare.method import PixelModel, _mitsuba
 
@@ -79,7 +79,7 @@ def test_lamp_stokes_is_mitsubas_rotation_and_pplastic_is_beckmann():
     """Two facts rendercompare relies on, against Mitsuba itself (analytic board, true lamp, alpha 0.14)."""
     import drjit as dr
 
-    from nearlight.estimator.paper import stage_one
+    from nearlight.estimator.first_stage import stage_one
     from nearlight.rendercompare.lobes import LOBES
     from nearlight.rendercompare.method import PixelModel, _mitsuba
 

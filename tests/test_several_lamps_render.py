@@ -238,13 +238,13 @@ def test_specular_aolp_is_each_lamps_rendered_polarization_angle(renders, i):
 
 def test_two_lamps_separated_specular_is_the_phase_weighted_sum():
     # The shipped scene (both filters along x, 30 deg apart): the projected separation of the noise-free render
-    # is the lamps' specular radiances weighted by cos 2(beta_k - beta_hat) (estimator.several.SeveralLampModel with
+    # is the lamps' specular radiances weighted by cos 2(beta_k - beta_hat) (estimator.lampsum.SeveralLampModel with
     # phases from the capture's rig.lamp_filter), not their sum. Measured at 96x72: the weighted true lamps miss
     # it by at most ~1e-5 of the peak (float32 storage; bound 1e-4), the plain sum by 2-3 % of it where the
     # highlights meet (bound: at least 1 %).
-    from nearlight.estimator.full import PointLampModel
+    from nearlight.estimator.lampsum import SeveralLampModel, lamp_phases
     from nearlight.estimator.observation import observe
-    from nearlight.estimator.several import SeveralLampModel, lamp_phases
+    from nearlight.estimator.pointlamp import PointLampModel
 
     cap = render_clean(load_scene(TWO, overrides={"camera.resolution": [96, 72]}), progress=False)
     assert cap.rig.lamp_filter.axis == (1.0, 0.0, 0.0) and cap.rig.lamp_filter.aim == (0.0, 0.0, 0.0)
@@ -288,7 +288,7 @@ def test_lamp_phases_need_the_filter_the_camera_and_a_phase():
 
     from nearlight.capture import Camera
     from nearlight.estimator.observation import observe
-    from nearlight.estimator.several import lamp_phases
+    from nearlight.estimator.lampsum import lamp_phases
 
     cap = render_clean(load_scene(TWO, overrides={"camera.resolution": [48, 36]}), progress=False)
     obs = observe(cap, separation="projected")
