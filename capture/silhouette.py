@@ -2,7 +2,7 @@
 
 A depth map stored upside down (its rows in the other order) or mirrored left
 to right, but back-projected with the right intrinsics, gives a ``P`` whose
-rays go through their pixels: :func:`nearlight.estimator.observation.check_rays`
+rays go through their pixels: :func:`nearlight.estimator.geometry.check_rays`
 cannot see it. What it does change is *where* the object is in the range: its
 silhouette there (pixels with a valid depth, finite ``P``) is the image's
 silhouette (pixels with signal) mirrored. This module compares the two masks

@@ -52,7 +52,7 @@ holds both directions.
 Range holes: the fit uses only specular pixels with range (finite ``P``);
 the peak, its normal (the start's mirror direction) and its surface point
 (the anchor above) may be a hole's filled pixel
-(:func:`~nearlight.estimator.observation.fill_range_holes`).
+(:func:`~nearlight.estimator.geometry.fill_range_holes`).
 """
 
 from __future__ import annotations

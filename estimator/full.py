@@ -17,7 +17,7 @@ robust loss and a sandwich covariance (see
 The fit uses only pixels with range (finite ``P``); a range hole on the
 highlight takes its pixels out of the fit but not out of the start, whose
 ray begins at the hole's filled point
-(:func:`~nearlight.estimator.observation.fill_range_holes`).
+(:func:`~nearlight.estimator.geometry.fill_range_holes`).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ import numpy as np
 from ..capture import Capture
 from ..errors import UserError
 from .distant import distant_specular
-from .observation import surface_geometry
+from .geometry import surface_geometry
 from .result import Estimate
 from ..physics.reflectance import specular_radiance
 

@@ -1,4 +1,4 @@
-"""``observation.check_rays``: P checked against the camera on a lattice of pixels (no Mitsuba)."""
+"""``geometry.check_rays``: P checked against the camera on a lattice of pixels (no Mitsuba)."""
 
 import dataclasses
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nearlight.errors import UserError
-from nearlight.estimator.observation import RAY_CHECK_PIXELS, check_rays, pixel_ray_error
+from nearlight.estimator.geometry import RAY_CHECK_PIXELS, check_rays, pixel_ray_error
 from nearlight.generator.analytic import analytic_capture
 
 

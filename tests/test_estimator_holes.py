@@ -1,4 +1,4 @@
-"""Range holes on the highlight: the ray's origin from a quadric fitted around the hole (estimator/observation.py)."""
+"""Range holes on the highlight: the ray's origin from a quadric fitted around the hole (estimator/geometry.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ from scipy.ndimage import distance_transform_edt
 
 from nearlight.capture import Camera
 from nearlight.estimator import estimate
-from nearlight.estimator.observation import HOLE_RING_PX, enclosed_holes, observe
+from nearlight.estimator.geometry import HOLE_RING_PX, enclosed_holes
+from nearlight.estimator.observation import observe
 from nearlight.estimator.first_stage import RaySearch, fast_search, initial_estimate
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.nuisances import observe as nuisances_observe
