@@ -77,7 +77,7 @@ import time
 import numpy as np
 
 from nearlight.estimator import METHODS, estimate
-from nearlight.estimator.observation import observe
+from nearlight.estimator.observation import observation_of
 from nearlight.estimator.first_stage import RaySearch, fast_search, scan_search, t_search_defaults
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.noise import add_camera_noise
@@ -144,7 +144,7 @@ def main() -> None:
         stages = ", ".join(f"{k} {v:.3f}" for k, v in est.timings.items())
         print(f"{name:8} full lobe=torrance_sparrow, camera noise, no sensor block: {secs:.3f} s ({stages}); "
               f"goal <= {GOAL:.1f} s {'met' if secs <= GOAL else 'NOT met'}")
-        obs = observe(cap)
+        obs = observation_of(cap)
         t_max, dt = t_search_defaults(obs, None, None)
         ray = RaySearch(obs)
         t_scan, scan = best_of(lambda: scan_search(ray.ep, t_max=t_max, dt=dt), 1)

@@ -8,7 +8,7 @@ Public API: :func:`estimate`, :class:`Estimate`, :data:`METHODS`,
 """
 
 from .api import METHODS, estimate, load_method
-from .resynth import render_specular
+from .prediction import render_specular
 from .result import Estimate
 from .separation import separate, separate_capture
 

@@ -17,8 +17,9 @@ censored maximum-likelihood estimate. Reading model (the generator's,
 radiance), recorded as ``q · round(clip(x_k, 0, sat) / q)`` (ADC step ``q``):
 a recorded 0 means ``x_k < q/2`` and has likelihood ``Φ((q/2 − μ_k)/sd_k)``;
 any other reading is taken as Gaussian of variance ``g·μ_k⁺ + r² + q²/12``.
-The signal is the separation's model,
-``μ_k = a + s · ½ cos 2(θ_k − β)`` (``a`` = ½ S0; ``s`` is exactly what the
+The signal is the analyzer model about its mean,
+``μ_k = a + s · ½ cos 2(θ_k − β)``
+(:func:`~nearlight.physics.polarization.analyzer_modulation`; ``a`` = ½ S0; ``s`` is exactly what the
 ``projected`` separation calls the specular when β is its phase,
 :func:`~nearlight.estimator.separation.specular_phase`).
 
@@ -27,7 +28,7 @@ level ``a`` is a nuisance parameter per pixel: the 2-parameter estimate's
 spread is 2.2–2.4 read deviations where the 1-parameter one's is 1.6–1.8,
 measured on the generator's own readings). So, per dark pixel:
 
-1. the phase β is that of a wider neighbourhood (:data:`PHASE_WINDOW`, the
+1. the phase β is that of a wider neighbourhood (:data:`DARK_PHASE_WINDOW`, the
    pixel left out) than the separation's 5 × 5: a dark pixel's estimate goes
    as ``s · cos 2δ`` with δ the phase error, and the 5 × 5 phase of faint
    pixels is noisy enough to shrink it (mean normalised error of the dark lit
@@ -71,12 +72,12 @@ import numpy as np
 from scipy.ndimage import uniform_filter
 from scipy.special import log_ndtr, ndtr
 
-from ..physics.polarization import linear_stokes
-from .noise import CameraNoise
-from .separation import _neighbourhood_phase, specular_gain
+from ..physics.polarization import analyzer_modulation, linear_stokes
+from .noise import VarianceModel
+from .separation import neighbourhood_phase, specular_gain
 
 #: Side (pixels) of the neighbourhood whose phase a dark pixel's specular is measured along.
-PHASE_WINDOW = 15
+DARK_PHASE_WINDOW = 15
 #: Side (pixels) of the neighbourhood whose mean level is a dark pixel's own (the pixel left out).
 LEVEL_WINDOW = 5
 #: Most Newton steps; a pixel has converged when its last step is below CONVERGED read deviations.
@@ -106,7 +107,7 @@ class ReadingModel(NamedTuple):
     step: float
 
 
-def reading_model(capture: Any, noise: CameraNoise) -> ReadingModel:
+def reading_model(capture: Any, noise: VarianceModel) -> ReadingModel:
     """The reading model of ``capture``: its stated sensor's ADC step, else none (see the module docstring)."""
     sensor = getattr(capture, "sensor", None)
     bits, saturation = getattr(sensor, "bits", None), getattr(sensor, "saturation", None)
@@ -160,7 +161,7 @@ def specular_given_level(R: np.ndarray, c: np.ndarray, level: np.ndarray,
     R : ndarray, shape (K, n)
         Readings (radiance; 0 where clipped), ``n`` pixel-channels.
     c : ndarray, shape (K, n)
-        ``½ cos 2(θ_k − β)`` of each reading (:func:`coefficients`).
+        ``½ cos 2(θ_k − β)`` of each reading (:func:`~nearlight.physics.polarization.analyzer_modulation`).
     level : ndarray, shape (n,)
         ``a`` of each pixel-channel, radiance.
     sensor : ReadingModel
@@ -231,12 +232,6 @@ def level_and_specular(R: np.ndarray, c: np.ndarray, sensor: ReadingModel) -> tu
     return a, s, converged
 
 
-def coefficients(angles_deg: Any, beta: np.ndarray) -> np.ndarray:
-    """``½ cos 2(θ_k − β)``, shape ``(K, *beta.shape)``: a reading's share of the specular ``s``."""
-    theta = np.radians(np.asarray(angles_deg, dtype=float)).reshape((-1,) + (1,) * np.ndim(beta))
-    return 0.5 * np.cos(2.0 * (theta - beta))
-
-
 class CensoredSpecular(NamedTuple):
     """Dark pixels' specular from their readings (:func:`censored_specular`), in ``dark``'s raster order.
 
@@ -256,14 +251,14 @@ class CensoredSpecular(NamedTuple):
     phase: np.ndarray
 
 
-def censored_specular(capture: Any, noise: CameraNoise, dark: np.ndarray, surface: np.ndarray) -> CensoredSpecular:
+def censored_specular(capture: Any, noise: VarianceModel, dark: np.ndarray, surface: np.ndarray) -> CensoredSpecular:
     """The specular of the ``dark`` pixels measured from their clipped readings (see the module docstring).
 
     Parameters
     ----------
     capture : Capture
         Its analyzer stack, angles, rig and (when stated) sensor.
-    noise : CameraNoise
+    noise : VarianceModel
         The camera model (:func:`~nearlight.estimator.noise.camera_noise`).
     dark : ndarray of bool, shape (H, W)
         Pixels to measure (:func:`~nearlight.estimator.noise.censored_pixels`).
@@ -280,17 +275,17 @@ def censored_specular(capture: Any, noise: CameraNoise, dark: np.ndarray, surfac
         return CensoredSpecular(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool), np.zeros(0))
     sensor = reading_model(capture, noise)
     angles = np.asarray(capture.analyzer_angles_deg, dtype=float)
-    radius = max(PHASE_WINDOW, 2 * LEVEL_WINDOW) // 2 + 1
+    radius = max(DARK_PHASE_WINDOW, 2 * LEVEL_WINDOW) // 2 + 1
     box = (slice(max(rows.min() - radius, 0), rows.max() + radius + 1),
            slice(max(cols.min() - radius, 0), cols.max() + radius + 1))
     stack = np.asarray(capture.stack[(slice(None), *box)], dtype=float)  # (K, h, w, 3)
     r, q = rows - box[0].start, cols - box[1].start
     coef = linear_stokes(stack, angles)  # (3, h, w, 3): S0, S1, S2
-    ub, uc = _neighbourhood_phase(coef[1], coef[2], PHASE_WINDOW)  # the phase of (S1, S2) is that of (b, c)
+    ub, uc = neighbourhood_phase(coef[1], coef[2], DARK_PHASE_WINDOW)  # the phase of (S1, S2) is that of (b, c)
     beta = 0.5 * np.arctan2(uc[r, q], ub[r, q])  # (n,)
     K = len(angles)
     R = stack[:, r, q, :].reshape(K, -1)  # (K, n·3)
-    c = np.repeat(coefficients(angles, beta)[..., None], 3, axis=-1).reshape(K, -1)
+    c = np.repeat(analyzer_modulation(angles, beta)[..., None], 3, axis=-1).reshape(K, -1)
     # the level of every pixel of the box: least squares, and the dark ones' own censored fit
     level = 0.5 * coef[0]
     a_dark, _, fine = level_and_specular(R, c, sensor)

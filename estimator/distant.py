@@ -65,7 +65,7 @@ from threadpoolctl import threadpool_limits
 from ..capture import Capture
 from ..errors import UserError
 from .fitting import LOSSES, log_regression, robust_fit
-from .observation import Observation, observe
+from .observation import Observation, observation_of
 from .options import Choice, Count, Fraction, Positive
 from .separation import SEPARATION_METHODS
 from .pixels import fit_pixels
@@ -326,7 +326,7 @@ def distant_estimate(
     ----------
     capture : Capture
     separation, threshold :
-        As for ``paper-init`` (:func:`~nearlight.estimator.observation.observe`).
+        As for ``paper-init`` (:func:`~nearlight.estimator.observation.observation_of`).
     loss, max_pixels, saturation :
         As for ``full`` (:func:`~nearlight.estimator.full.full_estimate`).
 
@@ -337,7 +337,7 @@ def distant_estimate(
         line), ``global`` (the grid winner, or why it was skipped) and ``fit``.
     """
     clock = time.perf_counter()
-    obs = observe(capture, separation=separation, threshold=threshold)
+    obs = observation_of(capture, separation=separation, threshold=threshold)
     timings = {"observe": time.perf_counter() - clock}
     clock = time.perf_counter()
     view = normalize(obs.camera_position - obs.P[obs.mask].mean(axis=0))

@@ -64,7 +64,7 @@ from ..errors import UserError
 from ..physics.reflectance import channel_sum, mirror_direction, normalize, shading_geometry
 from .fitting import log_regression
 from .highlights import several_highlights_warning
-from .observation import THRESHOLD, Observation, observe, subpixel_peak, surface_at
+from .observation import THRESHOLD, Observation, observation_of, subpixel_peak, surface_at
 from .options import Choice, Count, Fraction, Positive, forwards
 from .result import Estimate
 from .separation import SEPARATION_METHODS
@@ -360,11 +360,11 @@ def stage_one(
     Raises
     ------
     UserError
-        Bad input (see :func:`~nearlight.estimator.observation.observe`) or a
+        Bad input (see :func:`~nearlight.estimator.observation.observation_of`) or a
         ``t_max`` that cannot reach the lamp (E_p minimal at t_max).
     """
     clock = time.perf_counter()
-    obs = observe(capture, separation=separation, threshold=threshold)
+    obs = observation_of(capture, separation=separation, threshold=threshold)
     seconds = time.perf_counter() - clock
     init = ray_stage(capture, obs, t_max=t_max, dt=dt, search=search, n_coarse=n_coarse, strict_t_max=strict_t_max,
                      origin=origin, origin_shift=origin_shift)
@@ -384,7 +384,7 @@ def ray_stage(
     origin: str = "peak",
     origin_shift: float = 0.0,
 ) -> Estimate:
-    """:func:`stage_one` after :func:`~nearlight.estimator.observation.observe`: the ray, its t search and the regression.
+    """:func:`stage_one` after :func:`~nearlight.estimator.observation.observation_of`: the ray, its t search and the regression.
 
     E_p and the regression run over ``obs.mask``'s pixels (``full`` passes
     an observation whose mask is thinned, :func:`~nearlight.estimator.pointlamp.start_observation`).

@@ -34,7 +34,7 @@ from ..physics.reflectance import LOBES, peak_shape, roughness_for_ts_sigma, ts_
 from .first_stage import ray_stage, stage_one
 from .fitting import LOSSES
 from .lobes import FAMILIES
-from .observation import THRESHOLD, Observation, observe
+from .observation import THRESHOLD, Observation, observation_of
 from .options import Choice, Count, CountOrZero, Positive, forwards
 from .pixels import weighted_fit_pixels
 from .pointlamp import (PointLampModel, best_short_fit, final_fit, loss_floor, peak_ray_starts, short_fit,
@@ -277,10 +277,10 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
     Estimate
         ``full_estimate(capture, lamps=1, ...)``.
     Observation
-        The capture's observation (:func:`~nearlight.estimator.observation.observe`), whole mask.
+        The capture's observation (:func:`~nearlight.estimator.observation.observation_of`), whole mask.
     """
     clock = time.perf_counter()
-    obs = observe(capture, separation=separation, threshold=init_options.pop("threshold", THRESHOLD))
+    obs = observation_of(capture, separation=separation, threshold=init_options.pop("threshold", THRESHOLD))
     seconds = time.perf_counter() - clock
     start = start_observation(obs)
     init = ray_stage(capture, start, strict_t_max=False, **init_options)

@@ -57,8 +57,11 @@ from .separation import specular_gain
 FLOOR = 1e-4
 
 
-class CameraNoise(NamedTuple):
-    """``var(L) = gain · μ + read_var`` (radiance units), and where the numbers came from.
+class VarianceModel(NamedTuple):
+    """The camera's Poisson–Gaussian noise as a variance, ``var(L) = gain · μ + read_var`` (radiance units).
+
+    Measured or stated per capture (:func:`camera_noise`); a scene's noise
+    settings are :class:`nearlight.generator.scene.CameraNoise`.
 
     Attributes
     ----------
@@ -80,7 +83,7 @@ def _sensor_field(sensor: Any, key: str) -> float | None:
     return None if value is None else float(value)
 
 
-def sensor_noise(*, saturation: float, full_well: float, read_noise: float = 0.0, bits: float | None = None) -> CameraNoise:
+def sensor_noise(*, saturation: float, full_well: float, read_noise: float = 0.0, bits: float | None = None) -> VarianceModel:
     """The Poisson–Gaussian model of a stated sensor.
 
     ``gain = saturation / full_well`` (radiance per electron); ``read_var =
@@ -98,10 +101,10 @@ def sensor_noise(*, saturation: float, full_well: float, read_noise: float = 0.0
     """
     gain = saturation / full_well
     step = saturation / (2.0**bits - 1.0) if bits else 0.0
-    return CameraNoise(gain, (read_noise * gain) ** 2 + step**2 / 12.0, "sensor")
+    return VarianceModel(gain, (read_noise * gain) ** 2 + step**2 / 12.0, "sensor")
 
 
-def variance(L: np.ndarray, noise: CameraNoise) -> np.ndarray:
+def variance(L: np.ndarray, noise: VarianceModel) -> np.ndarray:
     """``gain · L + read_var`` of recorded radiance ``L`` (negative read as 0), radiance², shape of ``L``."""
     return noise.gain * np.clip(L, 0.0, None) + noise.read_var
 
@@ -132,7 +135,7 @@ def stokes_weights(angles_deg: Any, beta: np.ndarray) -> np.ndarray:
 NOISE_PIXELS = 20000
 
 
-def camera_noise(capture: Any, *, surface: np.ndarray | None = None) -> CameraNoise | None:
+def camera_noise(capture: Any, *, surface: np.ndarray | None = None) -> VarianceModel | None:
     """The capture's Poisson–Gaussian camera model: stated, else measured from the stack, else None.
 
     Parameters
@@ -148,7 +151,7 @@ def camera_noise(capture: Any, *, surface: np.ndarray | None = None) -> CameraNo
     return shared(_camera_noise, capture, surface)
 
 
-def _camera_noise(capture: Any, surface: np.ndarray | None) -> CameraNoise | None:
+def _camera_noise(capture: Any, surface: np.ndarray | None) -> VarianceModel | None:
     """:func:`camera_noise`, made afresh."""
     sensor = getattr(capture, "sensor", None)
     if sensor is not None:
@@ -178,10 +181,10 @@ def _camera_noise(capture: Any, surface: np.ndarray | None) -> CameraNoise | Non
         return None
     X = np.stack([x[ok], np.full(int(ok.sum()), dof)], axis=1)
     (gain, read_var), *_ = np.linalg.lstsq(X, y[ok], rcond=None)
-    return CameraNoise(max(float(gain), 0.0), max(float(read_var), 0.0), "stack residuals")
+    return VarianceModel(max(float(gain), 0.0), max(float(read_var), 0.0), "stack residuals")
 
 
-def specular_variance(capture: Any, specular: np.ndarray, noise: CameraNoise, *,
+def specular_variance(capture: Any, specular: np.ndarray, noise: VarianceModel, *,
                       pixels: np.ndarray | None = None) -> np.ndarray:
     """Variance of each pixel and channel of the separated (or given) specular image, radiance².
 
@@ -191,7 +194,7 @@ def specular_variance(capture: Any, specular: np.ndarray, noise: CameraNoise, *,
         Its stack (when the specular was separated from one), angles and rig.
     specular : ndarray, shape (H, W, 3)
         The specular image the fit uses.
-    noise : CameraNoise
+    noise : VarianceModel
     pixels : ndarray of bool, shape (H, W), optional
         Only these pixels (default: all).
 
@@ -222,7 +225,7 @@ CENSOR_SIGMAS = 3.0
 CENSOR_SMOOTH_PX = 2.0
 
 
-def censored_pixels(capture: Any, noise: CameraNoise, surface: np.ndarray, *,
+def censored_pixels(capture: Any, noise: VarianceModel, surface: np.ndarray, *,
                      judged: np.ndarray | None = None) -> np.ndarray:
     """Surface pixels whose readings the sensor may have clipped at zero: not the separation's to measure.
 
@@ -256,7 +259,7 @@ def censored_pixels(capture: Any, noise: CameraNoise, surface: np.ndarray, *,
     capture : Capture
         Its analyzer stack; a capture without one (a given specular image)
         has no readings to judge: nothing is left out.
-    noise : CameraNoise
+    noise : VarianceModel
     surface : ndarray of bool, shape (H, W)
     judged : ndarray of bool, shape (H, W), optional
         Only these pixels are judged (default: every surface pixel; the

@@ -1,6 +1,6 @@
 """What every method starts from: the specular image, geometry and highlight.
 
-:func:`observe` validates an in-memory :class:`~nearlight.capture.Capture`
+:func:`observation_of` validates an in-memory :class:`~nearlight.capture.Capture`
 (files are validated by :func:`nearlight.capture.read_capture`), takes its
 surface geometry (:func:`~nearlight.estimator.geometry.surface_geometry`:
 normals from ``P`` when ``N`` is absent, range holes filled, the range
@@ -28,7 +28,7 @@ from .separation import separate_capture
 
 T = TypeVar("T")
 
-#: Default specular mask threshold, fraction of the peak pixel's mean specular (:func:`observe`).
+#: Default specular mask threshold, fraction of the peak pixel's mean specular (:func:`observation_of`).
 THRESHOLD = 0.05
 #: Fewest specular pixels the regressions and fits accept.
 MIN_SPECULAR_PIXELS = 10
@@ -234,7 +234,7 @@ _SHARED: contextvars.ContextVar[dict | None] = contextvars.ContextVar("nearlight
 
 @contextlib.contextmanager
 def shared_observations() -> Iterator[None]:
-    """Within the block, :func:`observe` of one capture object with the same options is made once, and so is
+    """Within the block, :func:`observation_of` of one capture object with the same options is made once, and so is
     each computation made through :func:`shared`.
 
     :func:`nearlight.estimator.estimate` runs a method and then the sanity
@@ -264,7 +264,7 @@ def shared(compute: Callable[..., T], *of: object, **options: object) -> T:
     return store[key][1]
 
 
-def observe(capture: Capture, *, separation: str = "fit", threshold: float = THRESHOLD) -> Observation:
+def observation_of(capture: Capture, *, separation: str = "fit", threshold: float = THRESHOLD) -> Observation:
     """Reduce a capture to an :class:`Observation` (once per capture and options inside
     :func:`shared_observations`).
 
@@ -285,11 +285,11 @@ def observe(capture: Capture, *, separation: str = "fit", threshold: float = THR
         relative to the image (:func:`check_silhouette`), NaNs at surface pixels, no specular pixel above
         the threshold, or a peak on the image border.
     """
-    return shared(_observe, capture, separation=separation, threshold=float(threshold))
+    return shared(_observation_of, capture, separation=separation, threshold=float(threshold))
 
 
-def _observe(capture: Capture, *, separation: str, threshold: float) -> Observation:
-    """:func:`observe`, made afresh."""
+def _observation_of(capture: Capture, *, separation: str, threshold: float) -> Observation:
+    """:func:`observation_of`, made afresh."""
     P, N, V, cos_r, surface, filled = surface_geometry(capture)
     check_rays(capture)
     check_silhouette(capture)  # a mirrored range passes check_rays (capture/silhouette.py)

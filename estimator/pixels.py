@@ -8,7 +8,7 @@ import numpy as np
 
 from ..errors import UserError
 from .censored import censored_specular
-from .noise import FLOOR, CameraNoise, camera_noise, censored_pixels, specular_variance
+from .noise import FLOOR, VarianceModel, camera_noise, censored_pixels, specular_variance
 from .observation import Observation
 from ..physics.reflectance import any_channel, channel_sum
 
@@ -59,7 +59,7 @@ class FitPixels(NamedTuple):
     ----------
     use : ndarray of bool, shape (H, W)
         The fitted pixels.
-    camera : CameraNoise or None
+    camera : VarianceModel or None
         The camera model weighing them (None: equal weights).
     specular : ndarray, shape (H, W, 3)
         The observation's specular, its dark fitted pixels measured from their readings.
@@ -72,7 +72,7 @@ class FitPixels(NamedTuple):
     """
 
     use: np.ndarray
-    camera: CameraNoise | None
+    camera: VarianceModel | None
     specular: np.ndarray
     measured: np.ndarray
     measured_var: np.ndarray

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..capture import Capture
 from .observation import specular_image
-from .resynth import render_specular
+from .prediction import render_specular
 from .result import Estimate
 from ..files.figures import save_png, tonemap
 from ..files.outputs import check_file_out

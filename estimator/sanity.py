@@ -86,8 +86,8 @@ from ..capture import Capture
 from ..errors import UserError
 from .highlights import segment_highlights, several_highlights_warning
 from .noise import camera_noise, specular_variance
-from .observation import Observation, observe
-from .resynth import specular_at
+from .observation import Observation, observation_of
+from .prediction import specular_at
 from .pointlamp import ROUGHNESS_RANGE
 from .result import Estimate
 
@@ -349,9 +349,9 @@ def _located(est: Estimate, obs: Observation) -> Failure | None:
 
 
 def observation(capture: Capture, options: Mapping[str, Any]) -> Observation:
-    """The observation the rules hold an estimate to: :func:`~nearlight.estimator.observation.observe` with the
+    """The observation the rules hold an estimate to: :func:`~nearlight.estimator.observation.observation_of` with the
     method's ``separation`` and ``threshold`` options when it has them."""
-    return observe(capture, **{k: options[k] for k in ("separation", "threshold") if k in options})
+    return observation_of(capture, **{k: options[k] for k in ("separation", "threshold") if k in options})
 
 
 def check(capture: Capture, est: Estimate, obs: Observation, options: Mapping[str, Any] | None = None, *,

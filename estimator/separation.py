@@ -17,6 +17,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from scipy.ndimage import uniform_filter
 
 from ..errors import UserError
 from ..physics.polarization import linear_stokes, separate_extrema, separate_stokes
@@ -66,7 +67,7 @@ def _projected(stack: np.ndarray, angles_deg: np.ndarray, *, size: int = PHASE_W
     a smooth β that turns by δ across it costs a factor ≈ cos 2δ.
     """
     a, b, c = _coefficients(stack, angles_deg)
-    ub, uc = _neighbourhood_phase(b, c, size)
+    ub, uc = neighbourhood_phase(b, c, size)
     ub, uc = ub[..., None], uc[..., None]
     # in place, the same numbers: b ← b·ub + c·uc (half the amplitude), a ← 2 (a − half), b ← 2 half
     b *= ub
@@ -78,11 +79,9 @@ def _projected(stack: np.ndarray, angles_deg: np.ndarray, *, size: int = PHASE_W
     return b, a
 
 
-def _neighbourhood_phase(b: np.ndarray, c: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+def neighbourhood_phase(b: np.ndarray, c: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
     """``(cos 2β̂, sin 2β̂)``, shape (H, W) each: the phase of ``(b, c)`` summed over the ``size × size``
     neighbourhood and the three channels, the pixel itself left out (``(1, 0)`` where that sum is 0)."""
-    from scipy.ndimage import uniform_filter
-
     bs, cs = channel_sum(b), channel_sum(c)
     nb = uniform_filter(bs, size, mode="constant") * size**2 - bs
     nc = uniform_filter(cs, size, mode="constant") * size**2 - cs
@@ -108,7 +107,7 @@ def specular_phase(capture: Any, *, method: str = "fit") -> np.ndarray | None:
         return None
     _, b, c = _coefficients(capture.stack, np.asarray(capture.analyzer_angles_deg, float))
     if method == "projected":
-        ub, uc = _neighbourhood_phase(b, c, PHASE_WINDOW)
+        ub, uc = neighbourhood_phase(b, c, PHASE_WINDOW)
         return 0.5 * np.arctan2(uc, ub)
     return 0.5 * np.arctan2(channel_sum(c), channel_sum(b))
 

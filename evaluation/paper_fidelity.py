@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..estimator import estimate
-from ..estimator.observation import observe, surface_at
+from ..estimator.observation import observation_of as observe, surface_at
 from ..estimator.first_stage import RaySearch, mirror_oracle_pixel
 from ..generator.analytic import analytic_capture
 from ..physics.reflectance import ward_from_torrance_sparrow

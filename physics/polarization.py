@@ -110,6 +110,28 @@ def analyzer_stack_ideal(diffuse: np.ndarray, specular: np.ndarray, phase: np.nd
     return diffuse[None] / 2.0 + specular[None] * cos2[..., None]
 
 
+def analyzer_modulation(angles_deg: Any, phase: Any) -> np.ndarray:
+    """``½ cos 2(θ − β)``: a polarized part's share in the reading of an ideal analyzer at θ, beyond its mean.
+
+    The same model about the mean reading: ``I(θ) = ½ S0 + Is · ½ cos 2(θ − β)``
+    (``= Id/2 + Is·cos²(θ − β)``, :func:`analyzer_stack_ideal`), so a reading is
+    its level ``½ S0`` plus ``Is`` times this.
+
+    Parameters
+    ----------
+    angles_deg : array_like, shape (K,)
+        Analyzer angles θ, degrees.
+    phase : array_like
+        β of each pixel (the analyzer angle of maximum transmission of its polarized part), radians.
+
+    Returns
+    -------
+    ndarray, shape ``(K, *phase.shape)``
+    """
+    theta = np.radians(np.asarray(angles_deg, dtype=float)).reshape((-1,) + (1,) * np.ndim(phase))
+    return 0.5 * np.cos(2.0 * (theta - phase))
+
+
 # --------------------------------------------------------------------------- its inversion
 
 

@@ -8,7 +8,6 @@ import pytest
 from nearlight.estimator.censored import (
     ReadingModel,
     censored_specular,
-    coefficients,
     level_and_specular,
     reading_model,
     specular_given_level,
@@ -18,6 +17,7 @@ from nearlight.estimator.separation import separate_capture
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.noise import adc_counts, add_camera_noise
 from nearlight.generator.scene import CameraNoise
+from nearlight.physics.polarization import analyzer_modulation
 from nearlight.physics.reflectance import convert_bsdf
 
 ANGLES = np.array([0.0, 45.0, 90.0, 135.0])
@@ -32,7 +32,7 @@ def test_without_clipping_the_censored_fits_are_least_squares():
     n = 500
     sensor = ReadingModel(gain=0.0, latent_var=0.01**2, step=0.001)
     beta = rng.uniform(0.0, np.pi, n)
-    c = coefficients(ANGLES, beta)
+    c = analyzer_modulation(ANGLES, beta)
     level = rng.uniform(5.0, 6.0, n)
     R = level + rng.uniform(0.5, 1.0, n) * c + 0.01 * rng.standard_normal(c.shape)
     s, var, ok = specular_given_level(R, c, level, sensor)
@@ -63,7 +63,7 @@ def test_censored_specular_is_unbiased_and_calibrated_on_the_generators_readings
     rng = np.random.default_rng(1)
     n = 20000
     s_true = 2.0 * read
-    c = coefficients(ANGLES, rng.uniform(0.0, np.pi, n))
+    c = analyzer_modulation(ANGLES, rng.uniform(0.0, np.pi, n))
     level = level_reads * read + 0.5 * s_true  # a = Id/2 + Is/2
     mu = level + s_true * c
     R = adc_counts(mu, rng.standard_normal(mu.shape), rng.standard_normal(mu.shape), noise=noise, saturation=1.0) * step
@@ -131,13 +131,13 @@ def test_the_weighted_fit_reads_the_dark_pixels_it_measured():
     # reports how many
     from nearlight.estimator import estimate
     from nearlight.estimator.noise import FLOOR
-    from nearlight.estimator.observation import observe
+    from nearlight.estimator.observation import observation_of
     from nearlight.estimator.pixels import weighted_fit_pixels
 
     bsdf = convert_bsdf({"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1}, "ggx")
     clean = analytic_capture(width=96, height=72, bsdf=bsdf, shape="sphere", lamp_position=(0.1, 0.1, 0.6))
     cap = add_camera_noise(clean, noise=HIGH, seed=0)
-    obs = observe(cap, separation="projected")
+    obs = observation_of(cap, separation="projected")
     fit = weighted_fit_pixels(cap, obs, noise="auto", max_pixels=20000, saturation=None)
     camera = camera_noise(cap, surface=obs.surface)
     dark = censored_pixels(cap, camera, obs.surface)  # every surface pixel is fitted at this size

@@ -182,9 +182,9 @@ def test_distant_baseline_is_worse_than_full_on_a_near_scene():
 
 def test_start_observation_thins_the_mask_to_a_lattice_through_the_peak():
     from nearlight.estimator.pointlamp import start_observation
-    from nearlight.estimator.observation import observe
+    from nearlight.estimator.observation import observation_of
 
-    obs = observe(analytic_capture(width=160, height=120, bsdf={**TS, "sigma": 0.1}))
+    obs = observation_of(analytic_capture(width=160, height=120, bsdf={**TS, "sigma": 0.1}))
     n = int(obs.mask.sum())
     assert start_observation(obs, n_pixels=n) is obs  # small masks stay whole
     thin = start_observation(obs, n_pixels=n // 16)

@@ -9,7 +9,7 @@ from scipy.ndimage import distance_transform_edt
 from nearlight.capture import Camera
 from nearlight.estimator import estimate
 from nearlight.estimator.geometry import HOLE_RING_PX, enclosed_holes
-from nearlight.estimator.observation import observe
+from nearlight.estimator.observation import observation_of
 from nearlight.estimator.first_stage import RaySearch, fast_search, initial_estimate
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.nuisances import observe as nuisances_observe
@@ -45,7 +45,7 @@ def test_a_hole_on_a_board_is_filled_exactly_and_does_not_move_the_ray(radius):
     base = initial_estimate(cap)
     peak = tuple(base.diagnostics["peak_pixel"])
     holed, disk = _punch(cap, peak, radius)
-    obs = observe(holed)
+    obs = observation_of(holed)
     assert enclosed_holes(np.asarray(holed.P, float)).sum() == disk.sum()
     assert obs.filled[disk].all() and not obs.surface[disk].any()
     # A plane is a quadric: the filled points are the board's own, to the rounding of the float32 P fitted (one
@@ -84,7 +84,7 @@ def test_a_hole_on_a_sphere_is_filled_within_the_quadric_error(radius):
     base = initial_estimate(cap)
     peak = tuple(base.diagnostics["peak_pixel"])
     holed, disk = _punch(cap, peak, radius)
-    obs = observe(holed)
+    obs = observation_of(holed)
     assert obs.filled[disk].all()
     dp, dn = _fill_bounds(truth, disk, 0.15)
     err_p = np.linalg.norm(obs.P[disk] - truth.P[disk], axis=-1).max()
@@ -117,7 +117,7 @@ def test_paper_init_on_a_sphere_with_a_hole_moves_only_along_its_ray(radius):
     holed, disk = _punch(cap, peak, radius)
     est = initial_estimate(holed)
     dp, dn = _fill_bounds(truth, disk, 0.15)
-    dn_base = _angle(observe(cap).N[peak], truth.N[peak])
+    dn_base = _angle(observation_of(cap).N[peak], truth.N[peak])
     t0, t1 = base.stages["init"]["t"], est.stages["init"]["t"]
     lateral = dp + 2 * (dn + dn_base) * max(t0, t1)
     change = abs(np.linalg.norm(est.lamp_position - lamp) - np.linalg.norm(base.lamp_position - lamp))
@@ -163,7 +163,7 @@ def test_without_a_calibrated_camera_the_rays_come_from_the_fitted_pinhole():
     peak = tuple(initial_estimate(cap).diagnostics["peak_pixel"])
     holed, disk = _punch(cap, peak, 3)
     holed = holed.replace(camera=Camera(position=np.asarray(cap.camera.position)))
-    obs = observe(holed)
+    obs = observation_of(holed)
     assert obs.filled[disk].all() and obs.peak == peak
     np.testing.assert_allclose(obs.P[disk], cap.P[disk], rtol=0, atol=1e-6)
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nearlight.estimator import estimate
-from nearlight.estimator.noise import CENSOR_SIGMAS, CameraNoise, camera_noise, censored_pixels, specular_variance
+from nearlight.estimator.noise import CENSOR_SIGMAS, VarianceModel, camera_noise, censored_pixels, specular_variance
 from nearlight.estimator.separation import separate_capture
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.noise import add_camera_noise
@@ -52,13 +52,13 @@ def test_censored_pixels_are_those_whose_mean_reading_is_within_three_read_devia
     stack = np.broadcast_to(values[None, ..., None], clean.stack.shape).astype(np.float32)
     cap = clean.replace(stack=stack)
     surface = np.ones((30, 40), bool)
-    out = censored_pixels(cap, CameraNoise(gain=0.0, read_var=1.0, source="sensor"), surface)
+    out = censored_pixels(cap, VarianceModel(gain=0.0, read_var=1.0, source="sensor"), surface)
     assert CENSOR_SIGMAS == 3.0
     assert out[:, :15].all() and not out[:, 25:].any()  # 5 pixels (2.5 smoothing σ) from the step
     # no read noise, or no readings (a given specular image): nothing to judge, nothing left out
-    assert not censored_pixels(cap, CameraNoise(0.0, 0.0, "sensor"), surface).any()
+    assert not censored_pixels(cap, VarianceModel(0.0, 0.0, "sensor"), surface).any()
     given = clean.replace(specular=clean.extra["truth_specular"], diffuse=clean.extra["truth_diffuse"], stack=None)
-    assert not censored_pixels(given, CameraNoise(0.0, 1.0, "sensor"), surface).any()
+    assert not censored_pixels(given, VarianceModel(0.0, 1.0, "sensor"), surface).any()
 
 
 def test_a_black_sphere_loses_its_dark_rim_not_its_highlight():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nearlight.estimator.observation import observe
+from nearlight.estimator.observation import observation_of
 from nearlight.estimator.first_stage import RaySearch, fast_search, initial_estimate, scan_search, stage_one
 from nearlight.estimator.paper import Energy, alternating_minimisation
 from nearlight.estimator.fitting import log_regression
@@ -25,7 +25,7 @@ def _exact_ray(capture):
 
 
 def _on_exact_ray(capture):
-    obs = observe(capture)
+    obs = observation_of(capture)
     origin, direction, t_true = _exact_ray(capture)
     ray = RaySearch(obs)
     ray.origin, ray.direction = origin, direction
@@ -60,7 +60,7 @@ def test_stage_one_is_exact_on_the_exact_mirror_ray():
 )
 def test_fast_search_matches_plain_scan(kwargs):
     cap = analytic_capture(width=96, height=72, **kwargs)
-    obs = observe(cap)
+    obs = observation_of(cap)
     ray = RaySearch(obs)
     t_max, dt = 3.0, 1e-3
     scan = scan_search(ray.ep, t_max=t_max, dt=dt)

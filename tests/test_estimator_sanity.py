@@ -17,7 +17,7 @@ import pytest
 from nearlight.capture import write_capture
 from nearlight.cli import main
 from nearlight.estimator import Estimate, estimate
-from nearlight.estimator.observation import observe
+from nearlight.estimator.observation import observation_of
 from nearlight.errors import UserError
 from nearlight.estimator.sanity import (EXPLAINED_MIN, REACH, UnsupportedEstimate, check, explained_fraction,
                                         ks_scaled_fraction, own_highlight, predicted_specular, review)
@@ -41,18 +41,18 @@ def truth(**changes) -> Estimate:
 
 
 def rule(capture, est, **options):
-    failed = check(capture, est, observe(capture), options)
+    failed = check(capture, est, observation_of(capture), options)
     return None if failed is None else failed.rule
 
 
 def test_the_truth_passes_every_rule_and_explains_its_capture_exactly(capture):
     assert rule(capture, truth()) is None
     # closed-form capture, the estimator's own forward model: only float32 storage separates them
-    assert explained_fraction(capture, truth(), observe(capture)) == pytest.approx(1.0, abs=1e-5)
+    assert explained_fraction(capture, truth(), observation_of(capture)) == pytest.approx(1.0, abs=1e-5)
 
 
 def test_each_rule_refuses_what_breaks_it(capture):
-    obs = observe(capture)
+    obs = observation_of(capture)
     lamp = np.asarray(DEFAULT_LAMP_POSITION, dtype=float)
     anchor = obs.P[obs.peak]
     assert rule(capture, truth(sigma=np.nan)) == "finite"
@@ -79,7 +79,7 @@ def test_each_rule_refuses_what_breaks_it(capture):
 
 
 def test_explained_fraction_is_one_minus_relative_residual(capture):
-    obs = observe(capture)
+    obs = observation_of(capture)
     # Ŝ = k·S exactly (Ks scales the specular): 1 − (1 − k)²
     for k in (0.0, 0.5, 1.3):
         assert explained_fraction(capture, truth(ks=k * KS), obs) == pytest.approx(1 - (1 - k) ** 2, abs=1e-5)
@@ -92,7 +92,7 @@ def test_an_estimate_wrong_only_in_ks_keeps_its_lamp_and_sigma(capture):
     np.testing.assert_array_equal(est.lamp_position, DEFAULT_LAMP_POSITION)
     assert est.diagnostics["partial"]["quantity"] == "ks" and est.diagnostics["partial"]["rule"] == "ks-scale"
     np.testing.assert_array_equal(est.diagnostics["refused"]["ks"], 3 * KS)
-    obs = observe(capture)
+    obs = observation_of(capture)
     # rescaled, the truth's shape is the highlight's: all of its variation (float32 storage aside)
     assert ks_scaled_fraction(obs, obs.mask, predicted_specular(truth(ks=3 * KS), obs)) == pytest.approx(1, abs=1e-5)
 
@@ -152,7 +152,7 @@ def test_a_lamp_the_method_calls_undetermined_is_refused_even_near_the_truth():
     cap = analytic_capture(width=96, height=72)
     raw = estimate(cap, method="distant", sanity=False)
     assert raw.diagnostics["undetermined"] == ["light_direction", "sigma"]
-    obs = observe(cap)
+    obs = observation_of(cap)
     peak = obs.P[obs.peak]
     to_est, to_lamp = raw.lamp_position - peak, np.asarray(DEFAULT_LAMP_POSITION) - peak
     cosine = np.dot(to_est, to_lamp) / np.linalg.norm(to_est) / np.linalg.norm(to_lamp)
@@ -178,7 +178,7 @@ def test_one_lamp_methods_warn_of_several_highlights():
     # full's one lamp is held to the highlight it answers for, not the pair
     est = estimate(cap, method="full")
     assert est.ok
-    obs = observe(cap)
+    obs = observation_of(cap)
     region, explained = own_highlight(cap, est, obs)
     assert explained > 0.95 and region.sum() < obs.mask.sum()
     assert explained_fraction(cap, est, obs) < explained - 0.2  # over both highlights it explains far less
@@ -201,7 +201,7 @@ def test_no_good_estimate_of_the_study_design_is_refused():
         kw = {"sphere_centre": tuple(centre), "sphere_radius": 0.1} if shape == "sphere" else {}
         cap = analytic_capture(shape=shape, lamp_position=tuple(lamp), bsdf={**DEFAULT_BSDF, "sigma": sigma}, **kw)
         cap = rig_observe(cap, noise=high, seed=3) if noisy else cap
-        obs = observe(cap)
+        obs = observation_of(cap)
         for method in ("full", "paper-init"):
             try:
                 est = estimate(cap, method=method, sanity=False)

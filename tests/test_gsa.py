@@ -107,7 +107,7 @@ def test_a_categorical_input_picks_each_label_with_equal_probability():
 PLUGIN = '''
 import numpy as np
 from nearlight.estimator import Estimate, render_specular
-from nearlight.estimator.observation import observe
+from nearlight.estimator.observation import observation_of
 
 
 def fit(capture):
@@ -121,7 +121,7 @@ def fit(capture):
     error = 1e-3 * (1.0 + 4.0 * u_d + 2.0 * u_r + 1.0 * ward)  # metres: millimetres, so the estimate stays sane
     # Ks that re-synthesises the observed specular (least squares per channel), so the sanity rules pass it
     est = Estimate(method="gsa_plugin:fit", lamp_position=lamp + [error, 0.0, 0.0], ks=np.ones(3), sigma=sigma)
-    unit, seen = render_specular(capture, est), observe(capture).specular
+    unit, seen = render_specular(capture, est), observation_of(capture).specular
     est.ks = np.sum(unit * seen, axis=(0, 1)) / np.sum(unit**2, axis=(0, 1))
     return est
 '''

@@ -157,22 +157,22 @@ def test_fast_printed_am_walks_the_reference_walk(kwargs, space):
 def test_a_sharp_lobes_peak_is_not_a_spike_but_a_hot_pixel_is():
     # σ = 0.005 on the 160-px board: a lobe 1–2 px wide, its peak 2.1x its brightest neighbour
     # and 4.9x its 3x3 median. The old rule (> 2x the median) discarded it and the peak moved.
-    from nearlight.estimator.observation import observe
+    from nearlight.estimator.observation import observation_of
 
     sharp = {**TS, "sigma": 0.005}
     cap = analytic_capture(bsdf=sharp, analyzer_angles_deg=None)
     lum = np.asarray(cap.specular, dtype=float).mean(axis=-1)
     truth_peak = np.unravel_index(int(np.argmax(lum)), lum.shape)
-    obs = observe(cap, threshold=0.01)
+    obs = observation_of(cap, threshold=0.01)
     assert obs.peak == tuple(int(k) for k in truth_peak)
     assert obs.mask[obs.peak]
     # a hot pixel (5x the lobe there) away from the peak of an ordinary capture is still excluded
     cap = analytic_capture(bsdf=TS, analyzer_angles_deg=None)
     spec = np.array(cap.specular)
-    ref = observe(cap)
+    ref = observation_of(cap)
     i, j = ref.peak[0] + 3, ref.peak[1] + 3
     spec[i, j] *= 5.0
-    hot = observe(dataclasses.replace(cap, specular=spec))
+    hot = observation_of(dataclasses.replace(cap, specular=spec))
     assert not hot.mask[i, j] and hot.peak == ref.peak
 
 

@@ -71,10 +71,10 @@ def test_rig_import_refuses_a_flipped_depth_map(rigs, tmp_path, capsys, scene, f
 @pytest.mark.parametrize("scene", sorted(SCENES))
 def test_unflipped_rigs_import_and_pass_the_estimators_check(rigs, tmp_path, capsys, scene):
     from nearlight.capture import read_capture
-    from nearlight.estimator.observation import observe
+    from nearlight.estimator.observation import observation_of
 
     assert main(["rig", "import", str(rigs[scene] / "rig.yaml"), "--out", str(tmp_path / "cap")]) == 0
-    observe(read_capture(tmp_path / "cap"))  # the estimators' first step, with the check: no UserError
+    observation_of(read_capture(tmp_path / "cap"))  # the estimators' first step, with the check: no UserError
 
 
 def test_a_board_filling_the_view_has_no_silhouette_and_is_not_refused(rigs, tmp_path, capsys):

@@ -243,12 +243,12 @@ def test_two_lamps_separated_specular_is_the_phase_weighted_sum():
     # it by at most ~1e-5 of the peak (float32 storage; bound 1e-4), the plain sum by 2-3 % of it where the
     # highlights meet (bound: at least 1 %).
     from nearlight.estimator.lampsum import SeveralLampModel, lamp_phases
-    from nearlight.estimator.observation import observe
+    from nearlight.estimator.observation import observation_of
     from nearlight.estimator.pointlamp import PointLampModel
 
     cap = render_clean(load_scene(TWO, overrides={"camera.resolution": [96, 72]}), progress=False)
     assert cap.rig.lamp_filter.axis == (1.0, 0.0, 0.0) and cap.rig.lamp_filter.aim == (0.0, 0.0, 0.0)
-    obs = observe(cap, separation="projected")
+    obs = observation_of(cap, separation="projected")
     use = obs.surface
     lamp = PointLampModel(obs.P[use], obs.N[use], obs.camera_position, obs.specular[use])
     x, peak = _true_lamps(cap), obs.specular[use].max()
@@ -287,11 +287,11 @@ def test_lamp_phases_need_the_filter_the_camera_and_a_phase():
     import dataclasses
 
     from nearlight.capture import Camera
-    from nearlight.estimator.observation import observe
+    from nearlight.estimator.observation import observation_of
     from nearlight.estimator.lampsum import lamp_phases
 
     cap = render_clean(load_scene(TWO, overrides={"camera.resolution": [48, 36]}), progress=False)
-    obs = observe(cap, separation="projected")
+    obs = observation_of(cap, separation="projected")
     assert lamp_phases(cap, obs.surface, "projected").measured.shape == (int(obs.surface.sum()),)
     assert lamp_phases(cap, obs.surface, "fit") is not None
     assert lamp_phases(cap, obs.surface, "maxmin") is None

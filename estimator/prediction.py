@@ -1,8 +1,10 @@
-"""Re-synthesis of the specular image from an estimate, with the estimator's own forward model.
+"""The specular image an estimate predicts, with the estimator's own forward model.
 
-For plots (``nearlight estimate --plot``) and users' checks. The benchmark does
-not grade with it: :mod:`nearlight.evaluation.resynthesis` re-synthesises
-independently, so that a grade shares no code with the model it grades.
+For plots (``nearlight estimate --plot``), the sanity rules
+(:mod:`~nearlight.estimator.sanity`) and users' checks. The benchmark does not
+grade with it: the evaluation's grading re-synthesis
+(:mod:`nearlight.evaluation.resynthesis`) is a second implementation, so that
+a grade shares no code with the model it grades.
 """
 
 from __future__ import annotations
