@@ -48,20 +48,12 @@ step at most two read deviations. Without a stated sensor
 ``r² + q²/12`` together): the step is then taken as 0, and a reading
 within a millionth of a read deviation of 0 as clipped.
 
-Measured with ``full`` naming the true family (``benchmarks/bench_lobes.py``'
-captures, 160×120, 200 seeds), lamp RMSE / CRLB with the dark pixels left
-out → measured here: GGX sphere at high noise 1.14 (bootstrap upper bound
-1.25) → 1.07 (1.17), coverage of the 95 % ellipsoid 0.945 → 0.930; the
-other families' spheres and every board with diffuse unchanged; a black
-(``kd = 0``) board 2.63 → 2.36 at high noise but 1.82 → 2.03 at low (its
-weakness is elsewhere: :func:`~nearlight.estimator.full.full_estimate`).
-Taking the neighbours' diffuse level ``Imin = a − s/2`` instead of ``a``
-(``μ_k = Imin + s cos²(θ_k − β)``) ties ``s`` to the pixel's mean reading
-as well as to its modulation: on that black board at low noise, whose
-``Imin`` is 0, it gave 1.00, but where the neighbours' level is noisy it
-passes that noise to ``s`` (the GGX sphere at high noise: 3.75), while
+The neighbours' level is ``a``, not their diffuse level ``Imin = a − s/2``
+(``μ_k = Imin + s cos²(θ_k − β)``), which would tie ``s`` to the pixel's mean
+reading as well as to its modulation and pass a noisy level on to ``s``;
 with ``a`` the modulation alone decides (``Σ_k c_k = 0`` for evenly spaced
-angles) and a level's error enters only through the clipping.
+angles) and a level's error enters only through the clipping. What this
+brings to ``full``'s lamp: docs/estimator-measurements.md, "Dark pixels".
 """
 
 from __future__ import annotations

@@ -7,9 +7,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..capture import read_capture
 from ..errors import UserError
 from ..files.atomic import write_json
+from ..files.outputs import check_file_out
 from ..files.yamlfile import parse_setting
+from .api import estimate, load_method
+from .options import check_options
+from .plot import plot_estimate
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -47,11 +52,6 @@ def parse_options(pairs: list[str]) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..capture import read_capture
-    from .api import estimate, load_method
-    from .options import check_options
-    from ..files.outputs import check_file_out
-
     # the method and its options are checked before anything is read or written
     options = check_options(load_method(args.method), parse_options(args.options), method=args.method)
     # Both output places are checked before any work; the plot is drawn before the
@@ -82,8 +82,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"{est.method}: lamp ({pos}) m  ks ({ks})  sigma {est.sigma:.4f} rad  "
           f"[{sum(est.timings.values()):.2f} s]")
     if args.plot:
-        from .plot import plot_estimate
-
         plot_estimate(capture, est, args.plot)
     if args.json:
         write_json(Path(args.json), est.to_dict(), what="the estimate")

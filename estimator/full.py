@@ -59,7 +59,7 @@ REFIT_EVIDENCE = 50.0
 
 #: Least ``stages["full"]["specular_evidence"]`` (−2 log-likelihood of the fitted lobe against no
 #: specular, ``Ks = 0``) of a fit whose data show a highlight; below it ``full`` warns that the data do
-#: not determine the lamp (issue 42). Measured at 160×120, 4 angles, the 12-bit ``real_camera`` of
+#: not determine the lamp. Measured at 160×120, 4 angles, the 12-bit ``real_camera`` of
 #: suites/paper-v1.yaml: the cylinder, whose mirror point is off the object (half-angle ≥ 24.9°, 4.8 σ;
 #: peak specular 3e-5, ~1 electron, total SNR 0.06, CRLB 524 m), 7.6–24 over seeds 0–7 (pure noise
 #: fitted by seven parameters); every other paper scene ≥ 1.7e6 (seeds 0, 1), noise-free ≥ 2e9.
@@ -135,19 +135,17 @@ def full_estimate(
     lower-cost start wins and the answer can flip between them; no shipped
     scene has shown one.
 
-    Speed (issue 14; ``benchmarks/bench_estimator.py``): the start is the
-    first stage on a lattice of ~:data:`START_PIXELS` specular pixels rather
-    than on all of them (~53 000 on the 640×480 board), the multi-start's
-    short fits run on ~:data:`TRIAL_PIXELS` of the fitted pixels, until two
-    agree, by variable projection (the colour solved linearly at every step, the
-    solver moving lamp and roughness only:
+    Speed (``benchmarks/bench_estimator.py``): the start is the first stage
+    on a lattice of ~:data:`~nearlight.estimator.pointlamp.START_PIXELS`
+    specular pixels rather than on all of them (~53 000 on the 640×480
+    board), the multi-start's short fits run on ~:data:`TRIAL_PIXELS` of the
+    fitted pixels, until two agree, by variable projection (the colour solved
+    linearly at every step, the solver moving lamp and roughness only:
     :func:`~nearlight.estimator.pointlamp.short_fit`), and the model
     evaluates its geometry once per lamp and roughness for the residuals,
-    the Jacobian and the solved colour. Only the final fit sees every fitted pixel
-    (``max_pixels``), as before; it lands on the same minimum as the
-    whole-mask start did (analytic 640×480 board and sphere: the lamp
-    within 1e-14 m, σ within 1e-14 relative; 160×120 with camera noise:
-    within 1e-9 m).
+    the Jacobian and the solved colour. Only the final fit sees every fitted
+    pixel (``max_pixels``); it lands on the minimum a start on the whole mask
+    reaches (docs/estimator-measurements.md, "full").
 
     The lobe family (``lobe``): one named, or ``auto``: every family of
     :data:`~nearlight.estimator.lobes.FAMILIES` is fitted from the same
@@ -167,31 +165,22 @@ def full_estimate(
     measured from the analyzer stack's residuals; a stack of fewer than four
     angles, or a given specular image without a sensor, falls back to equal
     weights), so the loss and the lobe evidence are −2 log-likelihoods of
-    that camera; ``none`` weighs all pixels alike. Measured
-    (``benchmarks/bench_lobes.py``' captures, 12 seeds, Torrance–Sparrow
-    fit), lamp RMSE weighted against equal: board with diffuse 0.56 against
-    0.79 mm at low noise, 1.81 against 2.41 mm at high; sphere 3.34 against
-    4.00 and 11.2 against 12.4 mm. On a noise-free capture the residuals
-    measure no noise and every pixel gets the floor (equal weights). The
-    weights choose the lobe better where families nearly coincide: on a
-    low-noise sphere rendered with Ward, unweighted evidence named Beckmann in
-    2 of 5 seeds (5 % lamp error each), weighted in 1 of 5. Dark pixels,
-    whose readings the sensor may have clipped at zero
-    (:func:`~nearlight.estimator.noise.censored_pixels`: their separated
+    that camera; ``none`` weighs all pixels alike. On a noise-free capture
+    the residuals measure no noise and every pixel gets the floor (equal
+    weights). Dark pixels, whose readings the sensor may have clipped at
+    zero (:func:`~nearlight.estimator.noise.censored_pixels`: their separated
     specular is biased and its variance wrong), are measured from their
     readings by a censored likelihood instead
     (:func:`~nearlight.estimator.censored.censored_specular`,
     :func:`~nearlight.estimator.pixels.weighted_fit_pixels`;
-    ``stages["full"]["n_dark_measured"]``): on a GGX sphere at high noise,
-    52 % of whose pixels are dark, the lamp RMSE is 1.07 × the Cramér–Rao
-    bound over 200 seeds (1.14 with them left out, 2.0 with them fitted as
-    separated). A black (``kd = 0``) board stays the weighted fit's weak
-    case (RMSE / CRLB, 200 seeds: 2.03 at low noise, 2.36 at high, against
-    1.82 and 2.63 with its dark pixels left out; coverage 0.68 and 0.065):
-    its error is the highlight's own crossed-analyzer readings, near zero and
-    clipped although the pixel is bright, not its dark pixels.
+    ``stages["full"]["n_dark_measured"]``). A black (``kd = 0``) board stays
+    the weighted fit's weak case: its error is the highlight's own
+    crossed-analyzer readings, near zero and clipped although the pixel is
+    bright, not its dark pixels. What the weights and the censored pixels
+    bring, measured against the Cramér–Rao bound:
+    docs/estimator-measurements.md, "full".
 
-    Whether there is a highlight at all (issue 42): ``stages["full"]["specular_evidence"]`` is
+    Whether there is a highlight at all: ``stages["full"]["specular_evidence"]`` is
     ``(χ²(Ks = 0) − χ²) / s²``, the −2 log-likelihood of the fitted lobe against no specular. Below
     :data:`SPECULAR_EVIDENCE` the specular is camera noise (seven parameters fitted to pure noise
     gain ~10–35) and ``diagnostics["warnings"]`` says that the capture does not determine the lamp:

@@ -243,16 +243,8 @@ def censored_pixels(capture: Any, noise: VarianceModel, surface: np.ndarray, *,
     rest). The mean reading, not the
     smallest: a fully polarized specular with no diffuse (a black surface)
     has a reading near zero at the crossed angle across its whole
-    highlight, which holds the lamp.
-
-    Measured (``benchmarks/bench_lobes.py``' captures, 160×120, σ = 0.1, 12
-    seeds, the fit naming the true family), lamp RMSE / CRLB with these
-    pixels fitted as separated and left out: GGX sphere at high noise 2.00 → 1.28 (mean error
-    (−3.3, −5.9, −12.4) → (−0.6, −1.1, −2.3) mm); the same sphere black
-    (``kd = 0``) 4.91 → 1.08; a black Torrance–Sparrow board 3.91 → 2.52
-    (high noise) and 2.65 → 2.14 (low; unweighted 2.87 and 1.97); boards
-    with diffuse and the Torrance–Sparrow sphere unchanged (no pixel is
-    dark there) or within 0.02.
+    highlight, which holds the lamp. (Fitted as separated, they bias the
+    lamp: docs/estimator-measurements.md, "Dark pixels".)
 
     Parameters
     ----------

@@ -24,12 +24,9 @@ of a plane (:func:`_quadric_normals`: the curvature is fitted, not averaged
 into the slope; the same sphere's median error at 25 × 25: 0.25°), and the
 3 × 3 normal stays wherever the large window is not whole. A cubic would
 cut that bias further (0.015°) but amplifies the noise about 2.5 times,
-which on the noisy captures below cost more than it saved. Measured with
-``full`` (Torrance–Sparrow) on 320 × 240 analytic captures, normals from
-``P`` only, lamp error against the 3 × 3 plane fits: board with 0.2 mm
-range noise 76.6 % → 1.0 %, board with depth quantised to 1 mm 86.3 % →
-0.23 %, sphere with 0.2 mm noise 33.4 % → 7.3 %, sphere quantised to 1 mm
-66 % either way (the window's 31-pixel cap).
+which on noisy range images cost more than it saved. What the windows
+bring to ``full``'s lamp against 3 × 3 plane fits:
+docs/estimator-measurements.md, "Normals from range".
 The sums run as box filters (:func:`scipy.ndimage.uniform_filter`), so a
 window costs the same at any size.
 """

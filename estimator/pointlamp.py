@@ -166,7 +166,7 @@ def start_observation(obs: Observation, n_pixels: int = START_PIXELS) -> Observa
     (:func:`~nearlight.estimator.first_stage.ray_stage`, :func:`peak_ray_starts`) on the
     lattice cost ``1/step²`` of the whole mask's; the start only has to land
     in the minimum's basin, which the multi-start and the short fits then
-    settle (see :func:`full_estimate`'s "Speed").
+    settle (see :func:`~nearlight.estimator.full.full_estimate`'s "Speed").
 
     Parameters
     ----------
@@ -289,14 +289,11 @@ def short_fit(model: Any, x0: np.ndarray, scale: float) -> dict:
     (non-negative least squares, the model's ``linear_colours``) and the
     solver moves only the lamps' positions and the roughness (3K + 1
     unknowns), with Kaufman's Jacobian (the full one with the solved
-    colours' columns projected out). Measured against the plain fit of
-    all 6K + 1 parameters from the same starts (640×480 analytic board and
-    sphere, noise-free and noisy): every one of the seven one-lamp starts
-    reached the optimum, where the plain fit left three or four of them
-    far off after its 30 evaluations, in about half the evaluations.
+    colours' columns projected out): from the same starts it reaches the
+    optimum more often, in fewer evaluations, than a fit of all 6K + 1
+    parameters (docs/estimator-measurements.md, "Point-lamp fits").
     Budget: 30 evaluations for one lamp, 100 for several (a two-lamp start
-    from a dim lamp's residual was still 10⁹ times the optimum's χ² after
-    30 of the plain fit, and another family's, stuck nearer, won the choice).
+    from a dim lamp's residual needs more).
 
     Parameters
     ----------
@@ -354,11 +351,8 @@ def best_short_fit(model: Any, starts: Iterable[np.ndarray], scale: float) -> tu
     landing on it says that its basin is the wide one the starts were spread
     to find, and the remaining starts are there for when the first ones
     disagree. With ``full``'s starts tried middle distance first
-    (:func:`peak_ray_starts`) it stops after two
-    on nearly every capture: over the 240 one-lamp captures of the
-    sensitivity study, every start fitted (at 953a9fa), the first stage's
-    start reached the best of all seven on 236, each of the three middle
-    distances on all 240, the nearest (0.1 ×) on 226.
+    (:func:`peak_ray_starts`) it stops after two on nearly every capture
+    (docs/estimator-measurements.md, "Point-lamp fits").
 
     Parameters
     ----------

@@ -51,7 +51,7 @@ from .result import Estimate
 #: scene may hold more (:data:`nearlight.generator.scene.MAX_LAMPS`).
 MAX_FITTED_LAMPS = 4
 #: Closest two lamps of one fit, fraction of their mean distance from the observation's peak point:
-#: nearer, they are one lamp (the issue's accuracy, 1 % of the distance, cannot tell them apart). On
+#: nearer, they are one lamp (the benchmark's accuracy, 1 % of the distance, cannot tell them apart). On
 #: noise-free one-lamp captures, a split start made two lamps 2e-5 of the distance apart whose χ² of
 #: float32 rounding was 0.2–1 % below one lamp's, enough for BIC.
 LAMP_SEPARATION = 0.01
