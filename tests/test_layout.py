@@ -65,10 +65,11 @@ def part_of(dotted: str) -> str:
     return "__init__" if len(parts) == 1 else parts[1]
 
 
-def imported_modules(name: str, path: Path) -> set[str]:
-    """Dotted names of the nearlight modules or packages ``path`` imports, anywhere in it."""
+def import_statements(name: str, path: Path) -> list[tuple[str, list[str] | None]]:
+    """Every import in ``path``, anywhere in it: ``(module, names)`` of ``from module import names`` (relative
+    imports resolved), ``(module, None)`` of ``import module``."""
     package = name if path.stem == "__init__" else name.rpartition(".")[0]
-    out = set()
+    out: list[tuple[str, list[str] | None]] = []
     for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
         if isinstance(node, ast.ImportFrom):
             if node.level:
@@ -76,11 +77,15 @@ def imported_modules(name: str, path: Path) -> set[str]:
                 target = ".".join(base + ([node.module] if node.module else []))
             else:
                 target = node.module or ""
-            if target.split(".")[0] == "nearlight":
-                out.add(target)
+            out.append((target, [a.name for a in node.names]))
         elif isinstance(node, ast.Import):
-            out.update(a.name for a in node.names if a.name.split(".")[0] == "nearlight")
+            out.extend((a.name, None) for a in node.names)
     return out
+
+
+def imported_modules(name: str, path: Path) -> set[str]:
+    """Dotted names of the nearlight modules or packages ``path`` imports, anywhere in it."""
+    return {module for module, _ in import_statements(name, path) if module.split(".")[0] == "nearlight"}
 
 
 MODULES = source_modules()
@@ -130,21 +135,15 @@ def module_imports(name: str, path: Path, modules: Mapping[str, Path]) -> set[st
     package ``PKG`` whose names it takes; a package's ``__init__`` that its own
     module ran on the way (``import PKG.x``) is not counted.
     """
-    package = name if path.stem == "__init__" else name.rpartition(".")[0]
     out = set()
-    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
-        if isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package.split(".")[: len(package.split(".")) - node.level + 1]
-                target = ".".join(base + ([node.module] if node.module else []))
-            else:
-                target = node.module or ""
-            submodules = {f"{target}.{a.name}" for a in node.names} & set(modules)
-            out |= submodules
-            if len(submodules) < len(node.names) and target in modules:
-                out.add(target)
-        elif isinstance(node, ast.Import):
-            out.update(a.name for a in node.names if a.name in modules)
+    for module, names in import_statements(name, path):
+        if names is None:
+            out.update({module} & set(modules))
+            continue
+        submodules = {f"{module}.{n}" for n in names} & set(modules)
+        out |= submodules
+        if len(submodules) < len(names) and module in modules:
+            out.add(module)
     return out - {name}
 
 

@@ -129,7 +129,7 @@ def test_file_output_names(tmp_path):
 
 
 def test_a_failing_plot_leaves_no_estimate_json_behind(tmp_path, capsys, monkeypatch):
-    from nearlight.estimator import plot as plot_module
+    from nearlight.estimator import cli as estimator_cli
     from nearlight.generator.analytic import analytic_capture
 
     cap = write_capture(analytic_capture(width=32, height=24), tmp_path / "cap")
@@ -137,7 +137,7 @@ def test_a_failing_plot_leaves_no_estimate_json_behind(tmp_path, capsys, monkeyp
     def fail(capture, estimate, path):
         raise UserError(f"{path}: cannot write the figure (disk full)")
 
-    monkeypatch.setattr(plot_module, "plot_estimate", fail)
+    monkeypatch.setattr(estimator_cli, "plot_estimate", fail)  # where the verb finds it
     argv = ["estimate", str(cap), "--method", "paper-init", "--json", str(tmp_path / "e.json"),
             "--plot", str(tmp_path / "e.png")]  # fmt: skip
     assert main(argv) == 2
