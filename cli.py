@@ -29,14 +29,17 @@ from collections.abc import Iterator, Sequence
 from . import __version__
 from .errors import MissingExtra, UserError
 from .estimator import cli as estimator_cli
-from .evaluation import cli as evaluation_cli
-from .evaluation import reproduce_cli
+from .evaluation.engine import cli as engine_cli
+from .evaluation.gsa import cli as gsa_cli
+from .evaluation.paper import cli as paper_cli
+from .evaluation.suites import cli as suites_cli
+from .evaluation.views import cli as views_cli
 from .generator import cli as generator_cli
 from .rig import cli as rig_cli
 
 #: Modules whose ``register(subparsers)`` adds verbs, in help order. Importing
 #: them imports nothing heavy: Mitsuba is imported only when a verb that renders runs.
-VERB_MODULES = (reproduce_cli, generator_cli, rig_cli, estimator_cli, evaluation_cli)
+VERB_MODULES = (paper_cli, generator_cli, rig_cli, estimator_cli, engine_cli, views_cli, gsa_cli, suites_cli)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -25,7 +25,7 @@ the sensitivity study's camera noise (``low``: 50 000 e full well, 3 e read,
 2. **Confusion**: which family automatic choice names, per rendered family,
    at each noise level (low SNR → the families nearly coincide at small σ).
 3. **Efficiency**: lamp RMSE and σ RMSE over the seeds against the
-   Cramér–Rao bound (:func:`nearlight.evaluation.crlb.specular_crlb`, the
+   Cramér–Rao bound (:func:`nearlight.evaluation.scoring.crlb.specular_crlb`, the
    fit's own family), with a bootstrap 95 % upper bound of the ratio (goal:
    ≤ 1.2), and the coverage of the fit's 95 % lamp ellipsoid with its
    Clopper–Pearson interval (goal: it contains 95 %). Fits name the true
@@ -93,8 +93,8 @@ from scipy.stats import binomtest, chi2
 from nearlight.estimator import estimate
 from nearlight.estimator.lobes import FAMILIES
 from nearlight.estimator.noise import camera_noise, censored_pixels
-from nearlight.evaluation.crlb import camera_noise_variance, specular_crlb
-from nearlight.evaluation.metrics import truth_sigma
+from nearlight.evaluation.scoring.crlb import camera_noise_variance, specular_crlb
+from nearlight.evaluation.scoring.metrics import truth_sigma
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.noise import add_camera_noise
 from nearlight.physics.reflectance import convert_bsdf

@@ -31,7 +31,7 @@ import numpy as np
 
 from nearlight.errors import UserError
 from nearlight.estimator import estimate
-from nearlight.evaluation.metrics import highlight_point, lamp_position_error_pct
+from nearlight.evaluation.scoring.metrics import highlight_point, lamp_position_error_pct
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.noise import add_camera_noise
 

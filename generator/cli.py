@@ -43,7 +43,7 @@ def cache_dir(args: argparse.Namespace, *, default: Path | None = None) -> Path 
 
 
 def results_cache(args: argparse.Namespace) -> Path | None | bool:
-    """The ``cache_dir`` of :func:`nearlight.evaluation.engine.run_sweep` for a verb with a results
+    """The ``cache_dir`` of :func:`nearlight.evaluation.engine.run.run_sweep` for a verb with a results
     folder: True (its ``renders/``) unless ``--cache DIR`` (checked) or ``--no-cache`` (None)."""
     return cache_dir(args) if args.cache or args.no_cache else True
 

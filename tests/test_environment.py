@@ -6,7 +6,7 @@ import re
 from importlib.metadata import version
 from pathlib import Path
 
-from nearlight.evaluation.environment import PACKAGES, collect, differences
+from nearlight.evaluation.engine.environment import PACKAGES, collect, differences
 
 ROOT = Path(__file__).resolve().parents[1]
 

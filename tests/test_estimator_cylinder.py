@@ -28,7 +28,7 @@ QUICK = {"camera.resolution": [160, 120], "capture.analyzer_angles_deg": [0, 45,
 @pytest.fixture(scope="module")
 def cylinder():
     """The clean 160×120 render of scenes/cylinder.yaml (~0.2 s), its lamp and its highlight point."""
-    from nearlight.evaluation.metrics import highlight_point
+    from nearlight.evaluation.scoring.metrics import highlight_point
     from nearlight.generator import load_scene, render_clean
 
     scene = load_scene(files("nearlight.scenes") / "cylinder.yaml", overrides=QUICK)
@@ -40,7 +40,7 @@ def cylinder():
 @pytest.mark.render
 def test_noisy_cylinder_holds_no_lamp(cylinder):
     # The bound itself: the data cannot place the lamp within 2 %, nor within 100 × the distance (measured 524 m).
-    from nearlight.evaluation.crlb import camera_noise_variance, specular_crlb
+    from nearlight.evaluation.scoring.crlb import camera_noise_variance, specular_crlb
 
     clean, lamp, hp = cylinder
     bound = specular_crlb(clean, noise_var=camera_noise_variance(clean.stack, noise=REAL_CAMERA))["crlb_lamp_m"]

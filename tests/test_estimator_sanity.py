@@ -21,7 +21,7 @@ from nearlight.estimator.observation import observe
 from nearlight.errors import UserError
 from nearlight.estimator.sanity import (EXPLAINED_MIN, REACH, UnsupportedEstimate, check, explained_fraction,
                                         ks_scaled_fraction, own_highlight, predicted_specular, review)
-from nearlight.evaluation.tasks import run_method
+from nearlight.evaluation.engine.tasks import run_method
 from nearlight.generator.analytic import DEFAULT_BSDF, DEFAULT_LAMP_POSITION, analytic_capture
 
 KS = np.asarray(DEFAULT_BSDF["ks"], dtype=float)

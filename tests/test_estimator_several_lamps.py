@@ -2,8 +2,8 @@
 
 Captures: the two-lamp scene of scenes/two_lamps.yaml in closed form (two equal lamps 30° apart as
 seen from the board's centre, 0.5 m from it; a Torrance–Sparrow board, σ = 0.1) at 160 × 120, and
-the one-lamp analytic board and sphere. Distances are measured as evaluation/metrics.py's lamp
-error: from each true lamp's highlight point (:func:`~nearlight.evaluation.metrics.highlight_point`).
+the one-lamp analytic board and sphere. Distances are measured as evaluation/scoring/metrics.py's lamp
+error: from each true lamp's highlight point (:func:`~nearlight.evaluation.scoring.metrics.highlight_point`).
 
 Tolerances: the issue's acceptance, each lamp within 1 % of its distance. Measured: noise-free,
 1.3e-6 % (float32 images); with the camera noise below (12-bit, 20 000 e full well), 0.07–0.23 %
@@ -22,7 +22,7 @@ from nearlight.estimator.fitting import central_jacobian
 from nearlight.estimator.paper import stage_one
 from nearlight.estimator.highlights import highlights_of
 from nearlight.estimator.several import START_DISTANCES, START_SIGMAS, SeveralLampModel, ray_starts
-from nearlight.evaluation.metrics import lamp_scores
+from nearlight.evaluation.scoring.metrics import lamp_scores
 from nearlight.generator.analytic import analytic_capture, analytic_capture_lamps
 from nearlight.generator.noise import add_camera_noise
 
@@ -40,7 +40,7 @@ def two():
 
 def lamp_errors_pct(capture, est) -> list[float]:
     """Per true lamp, the error (% of its distance from its highlight point) of the estimated lamp matched
-    to it (:func:`nearlight.evaluation.metrics.lamp_scores`; NaN when missed)."""
+    to it (:func:`nearlight.evaluation.scoring.metrics.lamp_scores`; NaN when missed)."""
     s, n = lamp_scores(capture, est), len(capture.truth["lamps"])
     return [s["lamp_position_error_pct"]] if n == 1 else [s[f"lamp{i}_position_error_pct"] for i in range(n)]
 

@@ -1,4 +1,4 @@
-"""Regression verdicts (nearlight.evaluation.compare) on synthetic result rows: exact and pooled checks,
+"""Regression verdicts (nearlight.evaluation.views.compare) on synthetic result rows: exact and pooled checks,
 failures, missing units, the family-wise false-alarm rate and the power against a planted shift."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from nearlight.errors import UserError
-from nearlight.evaluation.compare import EXACT_FLOOR, MIN_SEEDS, compare_frames
+from nearlight.evaluation.views.compare import EXACT_FLOOR, MIN_SEEDS, compare_frames
 
 METRIC = "lamp_position_error_m"
 

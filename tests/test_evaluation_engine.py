@@ -17,12 +17,12 @@ import pandas as pd
 import pytest
 import yaml
 
-from nearlight.evaluation.compare import compare_dirs
-from nearlight.evaluation.crlb import camera_noise_variance
-from nearlight.evaluation.engine import run_sweep
-from nearlight.evaluation.report import write_report
-from nearlight.evaluation.store import read_results
-from nearlight.evaluation.sweep import load_sweep
+from nearlight.evaluation.views.compare import compare_dirs
+from nearlight.evaluation.scoring.crlb import camera_noise_variance
+from nearlight.evaluation.engine.run import run_sweep
+from nearlight.evaluation.views.report import write_report
+from nearlight.evaluation.engine.store import read_results
+from nearlight.evaluation.engine.sweep import load_sweep
 
 # Fake estimators (they read the truth: they test the engine, not estimation). `noisy` depends on the
 # noisy stack, so different seeds give different numbers and equal seeds equal ones.
@@ -253,7 +253,7 @@ def test_camera_noise_variance_matches_the_generator(rng):
 def test_a_row_holds_its_estimate_and_its_captures_come_back_from_the_sweep(first_run, sweep_file):
     # The oracle's estimate is the truth (offset 0): a row's est_* columns give it back, and the
     # noisy capture task_captures rebuilds is the one the task saw (same seed rule, same images).
-    from nearlight.evaluation.engine import row_estimate, task_captures
+    from nearlight.evaluation.engine.run import row_estimate, task_captures
 
     out, _ = first_run
     sweep = load_sweep(sweep_file)

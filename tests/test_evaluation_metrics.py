@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from nearlight.evaluation import metrics
-from nearlight.evaluation.crlb import crlb, specular_crlb, specular_variance_factor, stack_phase
-from nearlight.evaluation.metrics import METRICS, score, truth_estimate
+from nearlight.evaluation.scoring import metrics
+from nearlight.evaluation.scoring.crlb import crlb, specular_crlb, specular_variance_factor, stack_phase
+from nearlight.evaluation.scoring.metrics import METRICS, score, truth_estimate
 from nearlight.physics.reflectance import specular_radiance, shading_geometry
 from nearlight.generator.analytic import analytic_capture
 

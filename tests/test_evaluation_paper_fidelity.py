@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nearlight.estimator import estimate
-from nearlight.evaluation.paper_fidelity import TS_BOARD, ep_flatness, t_star_curve, ward_bias
+from nearlight.evaluation.paper.fidelity import TS_BOARD, ep_flatness, t_star_curve, ward_bias
 from nearlight.generator.analytic import analytic_capture
 
 

@@ -1,6 +1,6 @@
 """The grading re-synthesis: a second implementation that agrees with the first, and its defined edges.
 
-``nearlight.evaluation.resynthesis`` is written apart from ``nearlight.physics.reflectance`` on purpose
+``nearlight.evaluation.scoring.independent_resynthesis`` is written apart from ``nearlight.physics.reflectance`` on purpose
 (a grading oracle must not share code with what it grades); these tests hold the two to each other, to
 float64 rounding, on random geometry and on analytic captures.
 """
@@ -16,9 +16,9 @@ import pytest
 
 from nearlight.estimator import Estimate, estimate, render_specular
 from nearlight.estimator.distant import distant_specular
-from nearlight.evaluation import resynthesis
-from nearlight.evaluation.metrics import score, truth_estimate
-from nearlight.evaluation.resynthesis import resynthesize, ts_specular_distant, ts_specular_near
+from nearlight.evaluation.scoring import independent_resynthesis as resynthesis
+from nearlight.evaluation.scoring.metrics import score, truth_estimate
+from nearlight.evaluation.scoring.independent_resynthesis import resynthesize, ts_specular_distant, ts_specular_near
 from nearlight.generator.analytic import DEFAULT_BSDF, analytic_capture
 from nearlight.physics.polarization import through_polarizer
 from nearlight.physics.reflectance import LOBES, brdf_shape, convert_bsdf, specular_radiance
@@ -373,8 +373,8 @@ def test_a_result_row_gives_back_the_fitted_family_and_renders_it(model):
     before the column existed reads as Torrance–Sparrow, exactly as before."""
     import pandas as pd
 
-    from nearlight.evaluation.engine import row_estimate
-    from nearlight.evaluation.metrics import estimate_columns
+    from nearlight.evaluation.engine.run import row_estimate
+    from nearlight.evaluation.scoring.metrics import estimate_columns
 
     cap, bsdf = _family_capture(model)
     fit = _full_estimate(np.asarray(cap.truth["lamp_position"]), _reported(cap, bsdf))

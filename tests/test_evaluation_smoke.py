@@ -7,7 +7,7 @@ baseline after an intended change (see reports/smoke-baseline/README.md)::
 
 The baseline check must hold on any machine: noise-free configurations are
 compared within floors that cover another CPU's last bits, noisy ones pooled
-over 10 seeds with a family-wise false-alarm rate of 5 % (nearlight.evaluation.compare).
+over 10 seeds with a family-wise false-alarm rate of 5 % (nearlight.evaluation.views.compare).
 The two tests after it show the check has teeth and does not cry wolf: a planted
 2 % bias of ``full`` is flagged, a re-run with 10 other seeds is not.
 """
@@ -19,10 +19,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from nearlight.evaluation.compare import compare_dirs
-from nearlight.evaluation.engine import run_sweep
-from nearlight.evaluation.store import read_results
-from nearlight.evaluation.sweep import load_sweep
+from nearlight.evaluation.views.compare import compare_dirs
+from nearlight.evaluation.engine.run import run_sweep
+from nearlight.evaluation.engine.store import read_results
+from nearlight.evaluation.engine.sweep import load_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "sweeps" / "smoke.yaml"

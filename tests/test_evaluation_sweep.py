@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from nearlight.errors import UserError
-from nearlight.evaluation.sweep import load_sweep
+from nearlight.evaluation.engine.sweep import load_sweep
 
 BASE = {
     "name": "t",
@@ -151,7 +151,7 @@ def test_a_profile_overrides_set_keys_and_axis_values(tmp_path):
 
 def test_the_paper_sweeps_load_in_both_profiles():
     # sweeps/paper/*.yaml (what `nearlight reproduce` runs): valid as written (full) and with --quick.
-    from nearlight.evaluation.reproduce import EXPERIMENTS, load_sweeps
+    from nearlight.evaluation.paper.reproduce import EXPERIMENTS, load_sweeps
 
     for quick in (False, True):
         sweeps = load_sweeps(quick=quick)

@@ -460,7 +460,7 @@ def test_a_bench_capture_records_every_nuisance_and_still_estimates(tmp_path):
 def test_render_and_a_sweep_task_with_the_same_seed_see_the_same_nuisances(tmp_path, monkeypatch):
     # The one seed rule, nuisances included: `nearlight render --set realism=bench --set capture.seed=3` and a sweep
     # task with seed 3 on the same scene make the same capture. No Mitsuba: an analytic capture stands in for the render.
-    from nearlight.evaluation.tasks import noisy_capture
+    from nearlight.evaluation.engine.tasks import noisy_capture
     from nearlight.generator import pipeline
 
     clean = analytic_capture(width=64, height=48, analyzer_angles_deg=np.arange(8) * 22.5)

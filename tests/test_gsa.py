@@ -1,4 +1,4 @@
-"""Global sensitivity analysis (``nearlight.evaluation.gsa``): SALib's design and analysis recover known indices.
+"""Global sensitivity analysis (``nearlight.evaluation.gsa.study``): SALib's design and analysis recover known indices.
 
 Goldens: the Ishigami function ``sin x1 + a sin² x2 + b x3⁴ sin x1`` (a = 7, b = 0.1,
 x ~ U(-π, π)³) has closed-form Sobol' indices (Ishigami & Homma 1990; Saltelli et al.,
@@ -21,7 +21,7 @@ import pytest
 import yaml
 
 from nearlight.cli import main
-from nearlight.evaluation.gsa import Design, Input, analyse, camera_position, load_study, sample
+from nearlight.evaluation.gsa.study import Design, Input, analyse, camera_position, load_study, sample
 
 PI = math.pi
 ISHIGAMI_S1 = np.array([0.3139, 0.4424, 0.0])
@@ -167,7 +167,7 @@ def test_a_study_through_the_engine_and_the_cli_recovers_the_sobol_indices_of_a_
     prov = json.loads((tmp_path / "res" / "main" / "provenance.json").read_text())
     assert set(prov["parts"]) == {"results", "gsa"}
     assert prov["parts"]["results"]["command"].startswith(f"nearlight gsa {path} --out")
-    assert "evaluation/gsa.py" in prov["parts"]["gsa"]["code"]
+    assert "evaluation/gsa/study.py" in prov["parts"]["gsa"]["code"]
 
     # run again: nothing runs, the same report
     assert main(["gsa", str(path), "--out", str(tmp_path / "res"), "--quiet"]) == 0
@@ -264,7 +264,7 @@ def test_gsa_spells_quiet_cache_and_set_as_every_verb_does(tmp_path, monkeypatch
 
 
 def test_a_samples_output_is_the_mean_over_its_seeds_and_nan_when_any_failed():
-    from nearlight.evaluation.gsa import DesignRun, outputs
+    from nearlight.evaluation.gsa.study import DesignRun, outputs
 
     run = DesignRun(Design("d", "morris", n=1), np.zeros((3, 2)), None,
                     [{"m": ["a", "b"]}, {"m": ["c"]}, {"m": ["d", "e"]}])  # fmt: skip

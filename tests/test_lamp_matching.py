@@ -9,8 +9,8 @@ import pytest
 
 from nearlight.errors import UserError
 from nearlight.estimator import Estimate
-from nearlight.evaluation.matching import GATE_FRACTION, gate_radii, match_lamps
-from nearlight.evaluation.metrics import METRICS, highlight_point, score, truth_estimate
+from nearlight.evaluation.scoring.matching import GATE_FRACTION, gate_radii, match_lamps
+from nearlight.evaluation.scoring.metrics import METRICS, highlight_point, score, truth_estimate
 from nearlight.generator.analytic import analytic_capture, analytic_capture_lamps
 
 A, B, C = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 1.0]), np.array([0.0, 1.0, 1.0])
@@ -149,12 +149,12 @@ def test_one_lamp_halfway_matches_neither(two_lamps):
 def test_several_lamp_readers_fail_in_one_line(two_lamps):
     with pytest.raises(UserError, match=r"^capture: the oracle estimate expects a capture with one lamp; it has 2"):
         truth_estimate(two_lamps)
-    from nearlight.evaluation.crlb import specular_crlb
+    from nearlight.evaluation.scoring.crlb import specular_crlb
 
     with pytest.raises(UserError, match="the Cramér–Rao bound expects a capture with one lamp; it has 2 lamps"):
         specular_crlb(two_lamps, noise_var=1e-4)
-    from nearlight.evaluation.paper_fidelity import _lamp
-    from nearlight.evaluation.reproduce import _truth
+    from nearlight.evaluation.paper.fidelity import _lamp
+    from nearlight.evaluation.paper.reproduce import _truth
 
     with pytest.raises(UserError, match="the paper-fidelity study expects a capture with one lamp"):
         _lamp(two_lamps)
@@ -163,7 +163,7 @@ def test_several_lamp_readers_fail_in_one_line(two_lamps):
 
 
 def test_crlb_column_is_skipped_not_an_error_row_for_several_lamps(two_lamps):
-    from nearlight.evaluation.tasks import _crlb
+    from nearlight.evaluation.engine.tasks import _crlb
 
     assert _crlb(two_lamps, {"crlb": True, "noise": {"read_noise": 0.01}}) == {}
 
@@ -283,7 +283,7 @@ def test_estimate_lamp_positions_is_optional_and_serialised_only_when_set():
 
 
 def test_lamp_distance_axis_on_several_lamps_is_a_one_line_error():
-    from nearlight.evaluation.renderers import MitsubaRenderer
+    from nearlight.evaluation.engine.renderers import MitsubaRenderer
 
     r = MitsubaRenderer()
     two = {"object": {"position": [0, 0, 0]}, "lamps": [{"position": [0.1, 0.2, 0.4]}, {"position": [-0.1, 0.2, 0.4]}]}
@@ -300,8 +300,8 @@ def test_lamp_distance_axis_on_several_lamps_is_a_one_line_error():
 def test_lamp_table_and_compare_axes(two_lamps):
     import pandas as pd
 
-    from nearlight.evaluation.compare import _axes
-    from nearlight.evaluation.report import lamp_table
+    from nearlight.evaluation.views.compare import _axes
+    from nearlight.evaluation.views.report import lamp_table
 
     rows = []
     for method, est in (("both", _est(LAMPS[0], lamp_positions=LAMPS)), ("one", _est(LAMPS[1])),
@@ -326,7 +326,7 @@ def test_lamp_table_and_compare_axes(two_lamps):
 def test_lamps_by_label_counts_every_lamp_found_per_label_and_method(two_lamps):
     import pandas as pd
 
-    from nearlight.evaluation.report import lamps_by_label
+    from nearlight.evaluation.views.report import lamps_by_label
 
     both, one = score(two_lamps, _est(LAMPS[0], lamp_positions=LAMPS)), score(two_lamps, _est(LAMPS[1]))
     rows = [{"set": "far", "method": "auto", "status": "ok", **both}, {"set": "far", "method": "one", "status": "ok", **one},
@@ -343,7 +343,7 @@ def test_lamps_by_label_counts_every_lamp_found_per_label_and_method(two_lamps):
 def test_the_summary_shows_the_highlights_range_where_other_axes_change_it():
     import pandas as pd
 
-    from nearlight.evaluation.report import _lamps_by_wide, lamps_by_label
+    from nearlight.evaluation.views.report import _lamps_by_wide, lamps_by_label
 
     # one label, equal lamps (two highlights) and a faint second lamp (one blob): 1–2, not a median of 1.5
     rows = [{"set": "30deg", "method": "auto", "status": "ok", "n_lamps_true": 2.0, "lamps_missed": 0.0,
@@ -356,7 +356,7 @@ def test_the_summary_shows_the_highlights_range_where_other_axes_change_it():
 def test_report_shows_the_lamps_section_only_for_several_lamps(two_lamps, tmp_path):
     import pandas as pd
 
-    from nearlight.evaluation.report import write_report
+    from nearlight.evaluation.views.report import write_report
 
     one_cap = analytic_capture(width=80, height=60)
     rows = []
@@ -379,7 +379,7 @@ def test_report_shows_the_lamps_section_only_for_several_lamps(two_lamps, tmp_pa
 
 
 def test_a_row_records_whether_the_method_counted_the_lamps():
-    from nearlight.evaluation.metrics import estimate_columns
+    from nearlight.evaluation.scoring.metrics import estimate_columns
 
     auto = Estimate(method="full", lamp_position=[0, 0, 1], ks=[1, 1, 1], sigma=0.1,
                     stages={"full": {"lobe": "ward", "lamps_option": "auto"}})

@@ -1,4 +1,4 @@
-"""Provenance records: the import closure they hash, and staleness detection (nearlight.evaluation.provenance)."""
+"""Provenance records: the import closure they hash, and staleness detection (nearlight.evaluation.engine.provenance)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from nearlight.evaluation import provenance
+from nearlight.evaluation.engine import provenance
 
 
 @pytest.fixture
@@ -35,8 +35,8 @@ def test_closure_follows_function_level_relative_and_string_imports(fake_package
 
 
 def test_closure_of_the_real_engine_has_the_stages_it_runs_and_not_the_cli():
-    deps = _names(provenance.dependencies(["nearlight.evaluation.engine"]), provenance.PACKAGE_ROOT)
-    for needed in ("estimator/paper.py", "physics/reflectance.py", "generator/render.py", "evaluation/tasks.py"):
+    deps = _names(provenance.dependencies(["nearlight.evaluation.engine.run"]), provenance.PACKAGE_ROOT)
+    for needed in ("estimator/paper.py", "physics/reflectance.py", "generator/render.py", "evaluation/engine/tasks.py"):
         assert needed in deps
     assert "cli.py" not in deps and "estimator/plot.py" not in deps
 
@@ -85,7 +85,7 @@ def test_records_below_the_folder_are_checked_too(fake_package, tmp_path):
 def test_code_is_hashed_without_comments_and_docstrings(tmp_path):
     """Tidying costs no regeneration: a docstring or comment edit in estimator/full.py keeps its code hash, a
     changed constant or line of code does not (the freshness test then names the file)."""
-    from nearlight.evaluation.provenance import code_hash
+    from nearlight.evaluation.engine.provenance import code_hash
 
     src = (Path(provenance.PACKAGE_ROOT) / "estimator" / "full.py").read_text(encoding="utf-8")
     assert '"""Method ``full``' in src and "REFIT_EVIDENCE = 50.0" in src  # the edits below find their text

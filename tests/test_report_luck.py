@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from nearlight.evaluation.report_luck import luck_table, plot_luck
+from nearlight.evaluation.views.luck import luck_table, plot_luck
 
 AXES = ["lamp_distance", "noise", "object"]
 
@@ -57,9 +57,9 @@ def test_a_jittered_sweep_report_has_the_luck_section(tmp_path):
 
     import yaml
 
-    from nearlight.evaluation.engine import run_sweep
-    from nearlight.evaluation.report import write_report
-    from nearlight.evaluation.sweep import load_sweep
+    from nearlight.evaluation.engine.run import run_sweep
+    from nearlight.evaluation.views.report import write_report
+    from nearlight.evaluation.engine.sweep import load_sweep
 
     doc = yaml.safe_load((Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml").read_text())
     doc.update(seeds=3, methods=["paper-init"], axes={"lamp_distance": [0.3, 0.6]})  # distant: refused on a board

@@ -11,11 +11,11 @@ import pandas as pd
 import pytest
 import yaml
 
-from nearlight.evaluation.engine import run_sweep
-from nearlight.evaluation.one_at_a_time import cell_text, label_table, quantile_failures_worst
-from nearlight.evaluation.report import report_files, write_report
-from nearlight.evaluation.store import read_results
-from nearlight.evaluation.sweep import load_sweep
+from nearlight.evaluation.engine.run import run_sweep
+from nearlight.evaluation.views.one_at_a_time import cell_text, label_table, quantile_failures_worst
+from nearlight.evaluation.views.report import report_files, write_report
+from nearlight.evaluation.engine.store import read_results
+from nearlight.evaluation.engine.sweep import load_sweep
 
 # Fake estimators reading the truth (they test the report, not estimation): `off` is the truth moved by
 # (1, 1, 1) mm, an error of sqrt(3) mm (1 cm would move the sphere's sharp highlight off its pixels: refused); `broken` always fails; `blind` returns no usable lamp (NaN)

@@ -1,4 +1,4 @@
-"""Every committed report describes the code in this checkout (nearlight.evaluation.provenance).
+"""Every committed report describes the code in this checkout (nearlight.evaluation.engine.provenance).
 
 A report under ``reports/`` records the command that made it and the content
 hash of every nearlight source file in the import closure of that command
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from nearlight.evaluation import provenance
+from nearlight.evaluation.engine import provenance
 
 REPORTS = Path(__file__).resolve().parent.parent / "reports"
 FOLDERS = sorted(p for p in REPORTS.iterdir() if p.is_dir())

@@ -8,8 +8,8 @@ import json
 import pytest
 
 from nearlight.cli import main
-from nearlight.evaluation.reproduce import EXPERIMENTS, finite_numbers, load_sweeps
-from nearlight.evaluation.store import read_results
+from nearlight.evaluation.paper.reproduce import EXPERIMENTS, finite_numbers, load_sweeps
+from nearlight.evaluation.engine.store import read_results
 
 
 @pytest.fixture(scope="module")
@@ -145,7 +145,7 @@ def test_a_results_folder_of_another_sweep_is_refused_before_work(quick_report, 
 
 
 def test_check_against_another_run(quick_report):
-    from nearlight.evaluation.reproduce_check import TOLERANCES, check
+    from nearlight.evaluation.paper.check import TOLERANCES, check
 
     _, doc = quick_report
     lines, misses = check(doc, doc)
@@ -178,7 +178,7 @@ def test_first_stage_is_a_distribution_over_layouts_and_jitter(quick_report):
     # tables in the JSON and printed from it.
     import numpy as np
 
-    from nearlight.evaluation.reproduce import paper_first_stage_pct
+    from nearlight.evaluation.paper.reproduce import paper_first_stage_pct
 
     out, doc = quick_report
     md = (out / "paper_reproduction.md").read_text()
@@ -213,7 +213,7 @@ def test_first_stage_is_a_distribution_over_layouts_and_jitter(quick_report):
 
 
 def test_check_covers_the_first_stage_tables(quick_report):
-    from nearlight.evaluation.reproduce_check import check
+    from nearlight.evaluation.paper.check import check
 
     _, doc = quick_report
     moved = json.loads(json.dumps(doc))
@@ -231,7 +231,7 @@ def test_check_covers_the_first_stage_tables(quick_report):
 
 
 def test_distribution_counts_failures_above_every_error():
-    from nearlight.evaluation.paper_fidelity import distribution
+    from nearlight.evaluation.paper.fidelity import distribution
 
     d = distribution([1.0, 2.0, 3.0, float("nan"), float("nan")], reference=2.0)
     assert d["n"] == 5 and d["failed"] == 2

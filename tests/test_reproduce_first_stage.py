@@ -1,8 +1,8 @@
-"""The first-stage study's analytic pieces (``nearlight.evaluation.paper_fidelity``), no renderer."""
+"""The first-stage study's analytic pieces (``nearlight.evaluation.paper.fidelity``), no renderer."""
 
 from __future__ import annotations
 
-from nearlight.evaluation.paper_fidelity import TS_BOARD, ep_curves
+from nearlight.evaluation.paper.fidelity import TS_BOARD, ep_curves
 from nearlight.generator.analytic import analytic_capture
 
 

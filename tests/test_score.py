@@ -16,9 +16,9 @@ import pytest
 
 from nearlight.capture import read_capture
 from nearlight.cli import main
-from nearlight.evaluation.metrics import truth_estimate
-from nearlight.evaluation.scorecard import LADDERS, median_ci, scorecard
-from nearlight.evaluation.suite import read_manifest
+from nearlight.evaluation.scoring.metrics import truth_estimate
+from nearlight.evaluation.suites.scorecard import LADDERS, median_ci, scorecard
+from nearlight.evaluation.suites.suite import read_manifest
 
 from .test_suite_build import N_CASES, write_suite
 
@@ -107,11 +107,11 @@ def test_oracle_reaches_full_recall_at_every_threshold(suite, plugins, tmp_path,
     assert (out / "scorecard.md").read_text().startswith("# Scorecard: nl_score_plugins:oracle on tiny-v1 v1")
     assert (out / "scorecard.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # a committed scorecard goes stale when the code that scored changes (tests/test_reports_fresh.py)
-    from nearlight.evaluation import provenance
+    from nearlight.evaluation.engine import provenance
 
     record = json.loads((out / "provenance.json").read_text())["parts"]["results"]
     assert record["command"] == f"nearlight score {suite} --method nl_score_plugins:oracle --out {out}"
-    assert "evaluation/metrics.py" in record["code"] and provenance.stale(out) == []
+    assert "evaluation/scoring/metrics.py" in record["code"] and provenance.stale(out) == []
 
 
 def test_highlight_point_guess_has_no_recall_below_ten_percent(suite, plugins, tmp_path):
@@ -164,7 +164,7 @@ def test_rerun_skips_scored_cases_and_rescores_a_lost_one(suite, plugins, tmp_pa
 
 def test_two_worker_processes_give_the_same_rows(suite, plugins, tmp_path):
     """Cases sent to spawned workers (each reads its case from the suite folder) score as in-process."""
-    from nearlight.evaluation.store import read_results
+    from nearlight.evaluation.engine.store import read_results
 
     one, two = tmp_path / "one", tmp_path / "two"
     assert _score(suite, one, "distant") == 0 and _score(suite, two, "distant", "--workers", "2") == 0

@@ -97,7 +97,7 @@ def test_bad_lamps_of_analytic_capture(lamps, kwargs, expect):
 
 
 def test_analytic_capture_signature_is_unchanged():
-    # evaluation/renderers.py builds every analytic sweep scene from these parameters and hashes it into the
+    # evaluation/engine/renderers.py builds every analytic sweep scene from these parameters and hashes it into the
     # render key: the list (and defaults) at e8b09ea, before several lamps.
     import inspect
 

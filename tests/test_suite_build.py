@@ -16,7 +16,7 @@ import yaml
 from nearlight.capture import read_capture, write_capture
 from nearlight.cli import main
 from nearlight.errors import UserError
-from nearlight.evaluation.suite import (
+from nearlight.evaluation.suites.suite import (
     DIGEST_RTOL,
     digest_deviation,
     image_digest,
@@ -85,7 +85,7 @@ def test_manifest_names_every_case_file_and_version(built):
 def test_strip_truth_drops_the_generators_scene_record(built):
     """Mitsuba renders record their scene (lamp position, material) in capture.json's `generator`
     key: the truth in another form, so it is not handed to a method either; other keys stay."""
-    from nearlight.evaluation.suite import strip_truth
+    from nearlight.evaluation.suites.suite import strip_truth
 
     _, out = built
     cap = read_capture(out / "cases" / "000" / "truth")
@@ -126,7 +126,7 @@ def test_resume_keeps_built_cases(built, tmp_path, capsys):
 
 
 def test_interrupted_build_is_refused_by_score_and_resumed_by_build(built, tmp_path, capsys):
-    from nearlight.evaluation.suite import manifest_doc
+    from nearlight.evaluation.suites.suite import manifest_doc
 
     path, out = built
     copy = tmp_path / "copy"
@@ -180,7 +180,7 @@ def test_verify_against_a_build_beyond_tolerance(built, tmp_path, capsys):
     case = m["cases"][3]
     cap = read_capture(copy / case["path"] / "truth")
     write_capture(cap.replace(stack=cap.stack * 1.05), copy / case["path"] / "truth", overwrite=True)
-    from nearlight.evaluation.suite import case_record
+    from nearlight.evaluation.suites.suite import case_record
 
     m["cases"][3] = {**case, **case_record(copy / case["path"])}
     (copy / "manifest.json").write_text(json.dumps(m))

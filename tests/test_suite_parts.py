@@ -17,7 +17,7 @@ import yaml
 from nearlight.capture import read_capture
 from nearlight.cli import main
 from nearlight.errors import UserError
-from nearlight.evaluation.suite import PART, load_suite, read_manifest
+from nearlight.evaluation.suites.suite import PART, load_suite, read_manifest
 
 from .test_suite_build import pinned_suite_file
 

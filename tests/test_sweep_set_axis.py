@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from nearlight.errors import UserError
-from nearlight.evaluation.sweep import load_sweep
+from nearlight.evaluation.engine.sweep import load_sweep
 
 SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
 
