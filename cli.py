@@ -27,7 +27,7 @@ import threading
 from collections.abc import Iterator, Sequence
 
 from . import __version__
-from .errors import MissingExtra, UserError
+from .errors import MissingExtra, UserError, disk_full, no_space
 from .estimator import cli as estimator_cli
 from .evaluation.engine import cli as engine_cli
 from .evaluation.gsa import cli as gsa_cli
@@ -92,8 +92,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"nearlight: error: {exc}", file=sys.stderr)
         return UserError.exit_code
     except OSError as exc:  # a full disk where no writer named the file: still one line, not a traceback
-        from .errors import disk_full, no_space
-
         if not disk_full(exc):
             raise
         print(f"nearlight: error: {no_space(exc.filename or 'the output file system')}", file=sys.stderr)

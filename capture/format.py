@@ -22,7 +22,7 @@ import json
 import math
 import os
 import re
-import shutil
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -30,8 +30,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import UserError, disk_full
+from ..errors import UserError, disk_full, one_line
+from ..files.atomic import check_not_full, write_folder
 from ..files.jsonable import jsonable
+from ..files.outputs import check_capture_out, is_capture_dir
 from ..physics.reflectance import every_channel
 
 #: The version the writer writes.
@@ -462,8 +464,6 @@ def _quiet_fds() -> Iterator[list[str]]:
     OpenEXR reports damaged files on stderr/stdout itself, beside its exception;
     nearlight's one error line must be all the user sees.
     """
-    import sys
-
     lines: list[str] = []
     for stream in (sys.stdout, sys.stderr):
         try:
@@ -703,17 +703,9 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
     """
     import OpenEXR
 
-    from ..files.atomic import cannot_write, check_not_full
-    from ..files.outputs import check_capture_out, is_capture_dir
-
     path = check_capture_out(path, overwrite=overwrite)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
-    except OSError as exc:
-        raise cannot_write(path, exc) from None
-    old = None
-    try:
+
+    def fill(tmp: Path) -> None:
         (tmp / JSON_NAME).write_text(json.dumps(capture_json(capture), indent=2) + "\n")
         if OpenEXR.global_thread_count() == 0:
             # OpenEXR compresses on the calling thread by default; its pool of one
@@ -723,30 +715,11 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
         try:
             OpenEXR.File(header, _channels(capture)).write(str(tmp / EXR_NAME))
         except RuntimeError as exc:  # OpenEXR's I/O errors (a full disk: "No space left on device")
-            raise OSError(errno.ENOSPC if disk_full(exc) else errno.EIO, " ".join(str(exc).split())) from None
+            raise OSError(errno.ENOSPC if disk_full(exc) else errno.EIO, one_line(exc)) from None
         check_not_full(tmp / EXR_NAME)
-        if path.exists() or path.is_symlink():
-            # Checked again at the last moment: only a capture is ever replaced. The old
-            # capture is moved aside first, so a failure here keeps one of the two whole.
-            if not is_capture_dir(path):
-                check_capture_out(path, overwrite=overwrite)
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
-            path.rename(old / "capture")
-        tmp.rename(path)
-    except OSError as exc:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if old is not None and not path.exists() and (old / "capture").exists():
-            (old / "capture").rename(path)
-        raise cannot_write(path, exc) from None
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if old is not None and not path.exists() and (old / "capture").exists():
-            (old / "capture").rename(path)
-        raise
-    finally:
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    return path
+
+    # Checked again at the last moment: only a capture is ever replaced.
+    return write_folder(path, fill, existing=lambda p: is_capture_dir(p) or check_capture_out(p, overwrite=overwrite))
 
 
 def capture_json(capture: Capture) -> dict[str, Any]:

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..errors import UserError
 from .atomic import atomic_write
+from .outputs import check_file_out
 
 
 def tonemap(img: np.ndarray, *, white: float | None = None, gamma: float = 2.2) -> np.ndarray:
@@ -80,8 +81,6 @@ def panel_grid(
         ``path`` cannot be written, or holds a file that is not a PNG image
         (see :func:`nearlight.files.outputs.check_file_out`).
     """
-    from .outputs import check_file_out
-
     path = check_file_out(path, "png")
     import matplotlib
 

@@ -52,6 +52,7 @@ import numpy as np
 from ..capture import Camera, Capture, LampFilter, Rig
 from ..errors import UserError
 from ..files.atomic import atomic_write
+from ..files.digests import file_sha256
 from ..physics.polarization import analyzer_stack, filter_axes
 from .scene import LAMP_V1_KEYS, LampSpec, MitsubaMaterial, Scene, lamp_name, placement
 
@@ -346,7 +347,7 @@ def render_key(scene: Scene) -> str:
         "max_depth": cap["max_depth"],
     }
     if scene.object.type == "mesh":
-        relevant["mesh_sha256"] = hashlib.sha256(Path(scene.object.file).read_bytes()).hexdigest()
+        relevant["mesh_sha256"] = file_sha256(scene.object.file)
     return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:24]
 
 

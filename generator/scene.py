@@ -35,7 +35,9 @@ from pydantic import (
 from ..files.dotted import set_dotted
 from ..errors import UserError
 from ..files.yamlfile import load_yaml_file, parse_setting
+from ..physics.camera import shifted_target
 from ..physics.reflectance import LOBES
+from .realism import expand
 
 PositiveFloat = Annotated[float, Field(gt=0)]
 Vec3 = tuple[float, float, float]
@@ -86,8 +88,6 @@ class CameraSpec(_Model):
         shift = self.shift_for(seed)
         if shift == (0.0, 0.0):
             return self.look_at
-        from ..physics.camera import shifted_target
-
         t = shifted_target(self.position, self.look_at, self.up, self.fov_x_deg, self.width, self.height, shift)
         return (float(t[0]), float(t[1]), float(t[2]))
 
@@ -446,8 +446,6 @@ class Scene(_Model):
     def _profile(cls, data: Any) -> Any:
         """``lamp:`` as a one-element ``lamps:``; ``realism`` expanded into its nuisance values (keys the scene
         sets itself win)."""
-        from .realism import expand
-
         return expand(_lamp_list(data))
 
     @model_validator(mode="after")

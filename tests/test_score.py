@@ -176,7 +176,7 @@ def test_two_worker_processes_give_the_same_rows(suite, plugins, tmp_path):
 def test_bad_input_is_one_line_and_touches_nothing(suite, plugins, tmp_path, capsys):
     out = tmp_path / "o"
     assert _score(suite, out, "no-such-method") == 2
-    assert "--method 'no-such-method': unknown method" in capsys.readouterr().err
+    assert "--method: unknown method 'no-such-method'" in capsys.readouterr().err
     assert _score(tmp_path, out, "full") == 2
     assert "manifest.json: missing" in capsys.readouterr().err
     # another method's results folder is not resumed

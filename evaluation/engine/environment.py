@@ -19,6 +19,8 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+from ... import __version__
+
 #: The package's root folder (the repository root in a checkout): this file's folder, one level up per
 #: dot of its module name below ``nearlight``.
 PACKAGE_ROOT = Path(__file__).resolve().parents[__name__.count(".") - 1]
@@ -34,8 +36,6 @@ def code_version() -> str:
 
     ``.dirty`` when a tracked file outside ``reports/`` differs from the commit.
     """
-    from ... import __version__
-
     try:
         commit = subprocess.run(
             ["git", "-C", str(PACKAGE_ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10

@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from ...files.atomic import write_json
+from ...files.digests import file_sha256
 from ...files.outputs import check_file_out
 from .environment import PACKAGE_ROOT, code_version
 
@@ -125,10 +126,6 @@ def dependencies(entry_modules: Iterable[str]) -> list[Path]:
 CODE_HASH = "python-tokens/1"
 
 
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
 def code_tokens(source: str) -> list[str]:
     """The tokens of Python ``source`` that its behaviour depends on: no comments, no docstrings, no blank lines.
 
@@ -187,7 +184,7 @@ def code_tokens(source: str) -> list[str]:
 def code_hash(path: Path) -> str:
     """SHA-256 of a source file's :func:`code_tokens` (a Python file) or of its bytes (anything else), hex."""
     if path.suffix != ".py":
-        return _sha256(path)
+        return file_sha256(path)
     tokens = code_tokens(path.read_text(encoding="utf-8"))
     return hashlib.sha256("\n".join(tokens).encode("utf-8")).hexdigest()
 
@@ -236,7 +233,7 @@ def record(
         "command": command,
         "code_version": code_version(),
         "made": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "inputs": {_rel(Path(p)): _sha256(Path(p)) for p in inputs},
+        "inputs": {_rel(Path(p)): file_sha256(Path(p)) for p in inputs},
         "code_hash": CODE_HASH,
         "code": {_rel(p): code_hash(p) for p in dependencies(entry_modules)},
     }
@@ -268,7 +265,7 @@ def stale(folder: str | os.PathLike) -> list[str]:
         parts: Mapping[str, Any] = doc.get("parts", {})
         for name, part in sorted(parts.items()):
             changed = []
-            hashers = {"code": code_hash if part.get("code_hash") == CODE_HASH else _sha256, "inputs": _sha256}
+            hashers = {"code": code_hash if part.get("code_hash") == CODE_HASH else file_sha256, "inputs": file_sha256}
             for kind, hasher in hashers.items():
                 for rel, digest in part.get(kind, {}).items():
                     file = PACKAGE_ROOT / rel

@@ -12,7 +12,6 @@ for testing the evaluation itself.
 from __future__ import annotations
 
 import copy
-import hashlib
 import inspect
 import json
 import math
@@ -21,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from ...files.digests import stable_hash
 from ...files.dotted import get_dotted, set_dotted
 from ...errors import UserError
 from ...files.yamlfile import load_yaml_file
@@ -150,7 +150,7 @@ class Renderer:
 
     def render_key(self, scene: dict) -> str:
         """Hash of what the render depends on."""
-        return hashlib.sha256(json.dumps([self.name, scene], sort_keys=True).encode()).hexdigest()[:16]
+        return stable_hash([self.name, scene])
 
     def prepare(self, scene: dict, *, cache_dir: Path | None) -> bool:
         """Render ``scene`` into the cache if it is not there; True if it rendered."""

@@ -21,14 +21,14 @@ from typing import Any
 
 import numpy as np
 
-from ...errors import UserError
+from ...errors import UserError, one_line
 from ...estimator import Estimate
 from ...files.yamlfile import load_yaml_file
 from ...physics.reflectance import LOBES, convert_bsdf
 from ..scoring.metrics import ESTIMATE_COLUMNS, LOBE_COLUMN
 from .environment import code_version
 from .provenance import record
-from .store import MANIFEST, RENDERS, ResultStore, read_manifest, set_aside_damaged_parts
+from .store import SWEEP_JSON, RENDERS, ResultStore, read_sweep_json, set_aside_damaged_parts
 from .sweep import Sweep, Task
 from .tasks import noisy_capture, run_task
 from .workers import completed, executing
@@ -86,8 +86,8 @@ def task_row(task: Task, result: dict[str, Any], *, sweep: Sweep, version: str) 
 def check_resumable(out: str | Path, sweep: Sweep) -> None:
     """Raise :class:`UserError` unless ``out`` holds no sweep or this one (checked before any work)."""
     out = Path(out)
-    if (out / MANIFEST).exists():
-        old = read_manifest(out)
+    if (out / SWEEP_JSON).exists():
+        old = read_sweep_json(out)
         if old["sweep_hash"] != sweep.sweep_hash:
             raise UserError(
                 f"{out}: holds results of another sweep ({old['name']!r}, hash {old['sweep_hash']}); "
@@ -184,8 +184,8 @@ def run_sweep(
     RunSummary
     """
     t_start = time.perf_counter()
-    if (Path(out) / MANIFEST).exists():
-        read_manifest(out)  # a damaged sweep.json is a one-line error naming it, before anything runs
+    if (Path(out) / SWEEP_JSON).exists():
+        read_sweep_json(out)  # a damaged sweep.json is a one-line error naming it, before anything runs
     store = ResultStore(out, name=sweep.name, sweep_hash=sweep.sweep_hash, n_tasks=len(sweep.tasks), axes=list(sweep.axes))
     for moved in set_aside_damaged_parts(out):
         print(f"nearlight: note: a damaged result part was moved to {moved}; its task runs again", file=sys.stderr)
@@ -207,7 +207,7 @@ def run_sweep(
                 try:
                     rendered += bool(_result(fut))
                 except Exception as exc:  # the tasks of this configuration become error rows
-                    render_errors[futs[fut]] = f"render: {type(exc).__name__}: {' '.join(str(exc).split())}"
+                    render_errors[futs[fut]] = f"render: {type(exc).__name__}: {one_line(exc)}"
 
         futs = {}
         for t in todo:

@@ -25,11 +25,12 @@ from typing import Any
 
 import pandas as pd
 
-from ...errors import UserError
-from ...files.atomic import atomic_write, cannot_write
+from ...errors import UserError, one_line
+from ...files.atomic import atomic_write, cannot_write, write_json
+from .environment import collect
 
 RESULTS = "results.parquet"
-MANIFEST = "sweep.json"
+SWEEP_JSON = "sweep.json"
 ENVIRONMENT = "environment.json"
 PARTS = "parts"
 RENDERS = "renders"
@@ -56,30 +57,27 @@ class ResultStore:
             (self.out / PARTS).mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise cannot_write(self.out, exc) from None
-        manifest = self.out / MANIFEST
+        manifest = self.out / SWEEP_JSON
         doc = {"format": "nearlight-sweep/1", "name": name, "sweep_hash": sweep_hash, "tasks": n_tasks, "axes": list(axes)}
         if manifest.is_file():
-            old = read_manifest(self.out)
+            old = read_sweep_json(self.out)
             if old.get("sweep_hash") != sweep_hash:
                 raise UserError(
                     f"{self.out}: holds results of another sweep ({old.get('name')!r}, hash {old.get('sweep_hash')}); "
                     "choose another --out or remove it"
                 )
         else:
-            atomic_write(manifest, lambda tmp: Path(tmp).write_text(json.dumps(doc, indent=2) + "\n"))
+            write_json(manifest, doc)
         self.n_tasks = n_tasks
         self._record_environment()
 
     def _record_environment(self) -> None:
         """Add this process's environment to ``environment.json`` unless an identical record is there."""
-        from .environment import collect
-
         envs = read_environments(self.out)
         here = collect()
         if here not in envs:
             envs.append(here)
-            text = json.dumps(envs, indent=2) + "\n"
-            atomic_write(self.out / ENVIRONMENT, lambda tmp: Path(tmp).write_text(text))
+            write_json(self.out / ENVIRONMENT, envs)
 
     def done_ids(self) -> set[str]:
         """Ids of the tasks whose row is on disk."""
@@ -116,7 +114,7 @@ def read_environments(out: str | os.PathLike) -> list[dict[str, Any]]:
     try:
         envs = json.loads(path.read_bytes().decode("utf-8"))
     except ValueError as exc:
-        raise _damaged(path, f"not valid JSON: {' '.join(str(exc).split())[:80]}", fix) from None
+        raise _damaged(path, f"not valid JSON: {one_line(exc)[:80]}", fix) from None
     if not (isinstance(envs, list) and all(isinstance(e, dict) for e in envs)):
         raise _damaged(path, "expected a JSON list of environment records", fix)
     return envs
@@ -132,7 +130,7 @@ def _damaged(path: Path, why: str, fix: str) -> UserError:
 
 def _first_sentence(exc: BaseException) -> str:
     """The first sentence of an exception's message, without the file name it repeats."""
-    text = " ".join(str(exc).split())
+    text = one_line(exc)
     text = re.sub(r"^Could not open Parquet input source '[^']*': ", "", text)
     return re.split(r"(?<=\.) ", text, maxsplit=1)[0][:160].rstrip(".")
 
@@ -209,7 +207,7 @@ def set_aside_damaged_parts(out: str | os.PathLike) -> list[Path]:
     return moved
 
 
-def read_manifest(out: str | os.PathLike) -> dict[str, Any]:
+def read_sweep_json(out: str | os.PathLike) -> dict[str, Any]:
     """The ``sweep.json`` of a results folder.
 
     Raises
@@ -217,7 +215,7 @@ def read_manifest(out: str | os.PathLike) -> dict[str, Any]:
     UserError
         It is not a JSON object with ``name``, ``sweep_hash`` and ``tasks``.
     """
-    path = Path(out) / MANIFEST
+    path = Path(out) / SWEEP_JSON
     fix = ("it records which sweep the folder holds: restore it, or move it aside and run the same "
            "`nearlight sweep` again (finished parts are kept)")  # fmt: skip
     try:
@@ -225,7 +223,7 @@ def read_manifest(out: str | os.PathLike) -> dict[str, Any]:
     except OSError as exc:
         raise UserError(f"{path}: cannot read ({exc.strerror or exc})") from None
     except ValueError as exc:
-        raise _damaged(path, f"not valid JSON: {' '.join(str(exc).split())[:80]}", fix) from None
+        raise _damaged(path, f"not valid JSON: {one_line(exc)[:80]}", fix) from None
     if not isinstance(doc, dict):
         raise _damaged(path, "expected a JSON object", fix)
     for key, kind in (("name", str), ("sweep_hash", str), ("tasks", int)):

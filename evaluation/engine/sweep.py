@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import hashlib
 import itertools
 import json
 import math
@@ -25,11 +24,15 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from ...errors import UserError
+from ...estimator import METHODS, load_method
+from ...estimator.api import EXTRA_METHODS
+from ...estimator.options import check_options
 from ...files.schema import validate
 from ...files.yamlfile import load_yaml_mapping
+from ...files.digests import stable_hash
 from ...files.dotted import set_dotted
 from ...physics.reflectance import LOBES
 from .renderers import RENDERERS, Renderer
@@ -63,7 +66,7 @@ class _Profile(BaseModel):
     axes: dict[str, list[Any] | dict[str, Any]] = Field(default_factory=dict)
 
 
-class _SweepFile(BaseModel):
+class SweepFile(BaseModel):
     model_config = ConfigDict(extra="forbid")
     name: str
     description: str = ""
@@ -160,12 +163,6 @@ class Sweep:
         return list(dict.fromkeys(t.render_key for t in self.tasks))
 
 
-def stable_hash(obj: Any) -> str:
-    """A 16-hex-digit sha256 of ``obj`` as sorted JSON: the same on every machine (task ids, sweep and
-    suite hashes, case ids)."""
-    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
-
-
 def load_sweep(
     source: str | Path | Mapping[str, Any], *, check_methods: bool = True, profile: str | None = None
 ) -> Sweep:
@@ -199,7 +196,7 @@ def load_sweep(
         p = Path(source)
         path, base_dir = str(p), p.parent
         doc = load_yaml_mapping(p, what="sweep file", keys="name, scene, axes, seeds, methods")
-    spec = validate(_SweepFile, doc, where=path)
+    spec = validate(SweepFile, doc, where=path)
 
     sets, axis_values = _profiled(path, spec, profile)
     renderer = RENDERERS[spec.renderer]()
@@ -250,7 +247,7 @@ def load_sweep(
     return Sweep(spec.name, path, renderer, axes, seeds, methods, tasks, spec.crlb, profile)
 
 
-def _profiled(path: str, spec: _SweepFile, profile: str | None) -> tuple[dict[tuple[str, str], Any], dict[str, Any]]:
+def _profiled(path: str, spec: SweepFile, profile: str | None) -> tuple[dict[tuple[str, str], Any], dict[str, Any]]:
     """The ``set`` items (keyed by ``(where, key)``, in the order applied) and the axes, with ``profile`` applied.
 
     Every profile is checked, chosen or not: it may only change axes the file has.
@@ -272,7 +269,7 @@ def _profiled(path: str, spec: _SweepFile, profile: str | None) -> tuple[dict[tu
 
 def _axis_values(path: str, name: str, values: list[Any] | dict[str, Any]) -> list[tuple[Any, Any]]:
     """``[(label, value)]``: a list's items label themselves; a mapping's keys are labels."""
-    items = list(values.items()) if isinstance(values, dict) else [(_label(v), v) for v in values]
+    items = list(values.items()) if isinstance(values, dict) else [(axis_label(v), v) for v in values]
     if not items:
         raise UserError(f"{path}: axes.{name}: expected at least one value")
     labels = [str(lab) for lab, _ in items]
@@ -284,7 +281,9 @@ def _axis_values(path: str, name: str, values: list[Any] | dict[str, Any]) -> li
     return items
 
 
-def _label(value: Any) -> Any:
+def axis_label(value: Any) -> Any:
+    """How an axis value labels itself in the tables: itself when a number, string or bool, ``none`` for
+    null, else its compact JSON."""
     if value is None:
         return "none"
     if isinstance(value, (bool, int, float, str)):
@@ -318,13 +317,11 @@ def _check_axis_value(path: str, name: str, label: Any, value: Any) -> None:
         if not (value is None or isinstance(value, dict)):
             raise UserError(f"{where} expected null or a mapping of camera noise settings")
         if value is not None:
-            from pydantic import ValidationError as _VE
-
             from ...generator.scene import CameraNoise
 
             try:
                 CameraNoise.model_validate(value)
-            except _VE as exc:
+            except ValidationError as exc:
                 err = exc.errors()[0]
                 raise UserError(f"{where} {'.'.join(map(str, err['loc']))}: {err['msg']}") from None
     if name == "bsdf" and not (isinstance(value, dict) or value in LOBES):
@@ -387,17 +384,24 @@ def _physical_scene(renderer: Renderer, base: dict, chosen: dict[str, tuple[Any,
 def _method(path: str, i: int, m: str | _Method, check: bool) -> Method:
     spec = _Method(method=m) if isinstance(m, str) else m
     if check:
-        from ...estimator import METHODS, load_method
-        from ...estimator.api import EXTRA_METHODS
-        from ...estimator.options import check_options
-
-        if ":" not in spec.method and spec.method not in METHODS and spec.method not in EXTRA_METHODS:
-            raise UserError(
-                f"{path}: methods[{i}]: unknown method {spec.method!r} "
-                f"(expected one of {', '.join([*METHODS, *EXTRA_METHODS])} or module:function)"
-            )
-        try:
-            check_options(load_method(spec.method), spec.options, method=spec.method)
-        except UserError as exc:
-            raise UserError(f"{path}: methods[{i}]: {exc}") from None
+        check_method(spec.method, spec.options, where=f"{path}: methods[{i}]")
     return Method(spec.name or spec.method, spec.method, dict(spec.options))
+
+
+def check_method(method: str, options: Mapping[str, Any], *, where: str) -> None:
+    """Raise :class:`UserError` unless ``method`` is a method nearlight can run with ``options``, before any work.
+
+    ``method`` is a built-in name (:data:`nearlight.estimator.METHODS`), a
+    method of an extra (:data:`nearlight.estimator.api.EXTRA_METHODS`) or a
+    plug-in's ``module:function`` (imported now); ``options`` are checked
+    against the options its signature declares
+    (:func:`nearlight.estimator.options.check_options`). Every message starts
+    with ``where`` (a sweep file's ``methods[i]``, the ``--method`` option).
+    """
+    if ":" not in method and method not in METHODS and method not in EXTRA_METHODS:
+        raise UserError(f"{where}: unknown method {method!r} "
+                        f"(expected one of {', '.join([*METHODS, *EXTRA_METHODS])} or module:function)")  # fmt: skip
+    try:
+        check_options(load_method(method), dict(options), method=method)
+    except UserError as exc:
+        raise UserError(f"{where}: {exc}") from None

@@ -17,7 +17,11 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from ...errors import one_line
+from ...estimator import estimate
 from ...estimator.sanity import UnsupportedEstimate
+from ...physics.reflectance import LOBES
+from ..scoring.crlb import camera_noise_variance, specular_crlb
 from ..scoring.metrics import INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
 
 
@@ -30,8 +34,6 @@ def run_method(capture: Any, method: str, options: Mapping[str, Any]) -> Any:
     UnsupportedEstimate
         The estimate broke a rule of :mod:`nearlight.estimator.sanity`: the row is a failure, not a number.
     """
-    from ...estimator import estimate
-
     est = estimate(capture, method=method, **options)
     if not est.ok:
         raise UnsupportedEstimate(est)
@@ -51,9 +53,6 @@ def noisy_capture(clean: Any, task: Mapping[str, Any]) -> Any:
 def _crlb(clean: Any, task: Mapping[str, Any]) -> dict[str, float]:
     """CRLB columns when they apply (one lamp, a lobe with a closed form, ideal mode, a stack, Gaussian-modelled
     camera noise)."""
-    from ...physics.reflectance import LOBES
-    from ..scoring.crlb import camera_noise_variance, specular_crlb
-
     bsdf = clean.truth["bsdf"]
     if not task["crlb"] or task["noise"] is None or clean.stack is None or bsdf.get("model") not in LOBES:
         return {}
@@ -81,7 +80,7 @@ def failed_row(row: dict[str, Any], stage: str, exc: Exception) -> dict[str, Any
         return {**row, "status": "failed", "error": f"estimate: {exc}"}
     last = traceback.extract_tb(exc.__traceback__)[-1]
     return {**row, "status": "error",
-            "error": f"{stage}: {type(exc).__name__}: {' '.join(str(exc).split())} ({Path(last.filename).name}:{last.lineno})"}
+            "error": f"{stage}: {type(exc).__name__}: {one_line(exc)} ({Path(last.filename).name}:{last.lineno})"}
 
 
 def run_task(task: Mapping[str, Any], *, renderer: Any, cache_dir: str | None) -> dict[str, Any]:

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ...errors import UserError
+from ...files.atomic import write_text
 from ...files.figures import save_png
 from ...files.outputs import check_files_in, make_folder
 from .study import DesignRun, Input, Study, analyse, outputs
@@ -189,8 +189,8 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
     design = run.design.method
     indices = index_table(study, run, results)
     table = output_table(study, run, results)
-    _write(folder / "indices.csv", indices.to_csv(index=False))
-    _write(folder / "outputs.csv", table.to_csv(index=False))
+    write_text(folder / "indices.csv", indices.to_csv(index=False), what="the report")
+    write_text(folder / "outputs.csv", table.to_csv(index=False), what="the report")
     what = ("Sobol' indices (Saltelli sample, SALib): total ST ± half-width of the bootstrap interval, first-order "
             "S1 ± its half-width in brackets" if design == "sobol" else
             "Morris screening (SALib): mu* (mean |elementary effect|: the metric's change over a step of the input "
@@ -213,7 +213,7 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
         png = f"scatter_{_safe(method)}.png"
         plot_scatter(table, study.inputs, metrics[0], method, folder / png)
         md += [f"![{method}]({png})", ""]
-    _write(folder / "gsa.md", "\n".join(md))
+    write_text(folder / "gsa.md", "\n".join(md), what="the report")
     record(results_dir, command=command, entry_modules=[__name__], inputs=[study.source], part="gsa")
     return folder
 
@@ -228,9 +228,3 @@ def _dist(i: Input) -> str:
 def _safe(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
 
-
-def _write(path: Path, text: str) -> None:
-    try:
-        path.write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise UserError(f"{path}: cannot write the report ({exc.strerror or exc})") from None

@@ -46,10 +46,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from ...errors import UserError
+from ...files.dotted import set_dotted
 from ...files.schema import validate
 from ...files.yamlfile import load_yaml_mapping
-from ..engine.sweep import Sweep, _SweepFile, load_sweep
-from ..engine.sweep import _label as axis_label  # one home for how an axis value labels itself
+from ..engine.sweep import Sweep, SweepFile, axis_label, load_sweep
+from ..scoring.metrics import ESTIMATE_COLUMNS, METRICS
 
 #: Built-in axes an input may drive with a number (as the sweep axis of that name).
 NUMBER_AXES = ("lamp_distance", "roughness", "range_noise")
@@ -107,8 +108,8 @@ class _Design(BaseModel):
         return self
 
 
-class _GSAFile(_SweepFile):
-    """A sweep file's keys (one schema: :class:`~nearlight.evaluation.engine.sweep._SweepFile`) without its grid,
+class _GSAFile(SweepFile):
+    """A sweep file's keys (one schema: :class:`~nearlight.evaluation.engine.sweep.SweepFile`) without its grid,
     ``axes`` and ``profiles``, plus the GSA's own."""
 
     methods: list[Any] = Field(min_length=1)  # passed on to load_sweep as written, which checks them
@@ -401,8 +402,6 @@ def load_study(source: str | Path, *, settings: Mapping[str, Any] = (), design: 
     UserError
         One line naming the file and key.
     """
-    from ...files.dotted import set_dotted
-
     p = Path(source)
     path = str(p)
     doc = load_yaml_mapping(p, what="GSA file", keys="name, scene, inputs, designs, methods")
@@ -410,7 +409,6 @@ def load_study(source: str | Path, *, settings: Mapping[str, Any] = (), design: 
         set_dotted(doc, key, value, where=f"--set {key}")
     spec = validate(_GSAFile, doc, where=path)
     inputs = _inputs(path, spec)
-    from ..scoring.metrics import ESTIMATE_COLUMNS, METRICS
 
     for name in spec.metrics:
         if name not in (*METRICS, *ESTIMATE_COLUMNS):

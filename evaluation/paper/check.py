@@ -18,9 +18,15 @@ brightest, their rows move by far more and the check names them.
 from __future__ import annotations
 
 import functools
+import json
 import math
 from collections.abc import Iterator
 from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
+
+from ...errors import UserError, one_line
+from ...files.schema import validate
 
 #: Allowed absolute difference per metric between two runs of the same profile, in the metric's units.
 TOLERANCES: dict[str, float] = {
@@ -149,8 +155,6 @@ def tolerance_text() -> str:
 @functools.cache
 def _reference_model() -> type:
     """The pydantic model of what :func:`rows` reads from a reproduction document (other keys are free)."""
-    from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
-
     free = ConfigDict(extra="allow")
     Number = float | None
     Metrics = create_model("Metrics", __config__=free, **{m: (Number, None) for m in TOLERANCES})
@@ -221,11 +225,6 @@ def read_reference(path: Any, profile: str) -> dict[str, Any]:
         One line naming ``path`` and the key: unreadable, not JSON, a key of the wrong kind, no
         experiments, no number to compare, or another profile than ``profile``.
     """
-    import json
-
-    from ...errors import UserError
-    from ...files.schema import validate
-
     where = f"--against {path}"
     try:
         doc = json.loads(path.read_bytes().decode("utf-8"))
@@ -233,7 +232,7 @@ def read_reference(path: Any, profile: str) -> dict[str, Any]:
         raise UserError(f"{where}: cannot read ({exc.strerror or exc}); expected a folder written by "
                         "`nearlight reproduce`") from None
     except (ValueError, RecursionError) as exc:
-        raise UserError(f"{where}: not valid JSON ({' '.join(str(exc).split())[:80]})") from None
+        raise UserError(f"{where}: not valid JSON ({one_line(exc)[:80]})") from None
     if not (isinstance(doc, dict) and isinstance(doc.get("experiments"), dict)):
         raise UserError(f"{where}: experiments: expected a paper_reproduction.json document with experiments")
     validate(_reference_model(), doc, where=where)

@@ -12,6 +12,9 @@ from typing import Any
 
 import numpy as np
 
+from ...errors import UserError
+from .check import tolerance_text
+
 
 def _vec(v: Any, digits: int = 3) -> str:
     """``(x, y, z)``; ``n/a`` for a vector the sanity rules refused (its numbers NaN, ``None`` in JSON)."""
@@ -60,8 +63,6 @@ def _failed(r: dict[str, Any], columns: int) -> list[str] | None:
 def _lamp_true(ex: dict[str, Any], key: str) -> Any:
     """An experiment's one true lamp (a one-line UserError when its truth has none: several lamps)."""
     if "lamp_position" not in ex["truth"]:
-        from ...errors import UserError
-
         raise UserError(f"reproduction document: experiments.{key}.truth.lamp_position: missing "
                         "(the reproduction expects a capture with one lamp)")
     return ex["truth"]["lamp_position"]
@@ -262,8 +263,6 @@ mirror ray (t* = {curves['mirror']['t_star'] / curves['mirror']['t_true']:.3f}),
 
 def markdown(doc: dict[str, Any]) -> str:
     """The whole report."""
-    from .check import tolerance_text
-
     p = doc["profile"]
     env = doc.get("environment") or {}
     where = f" on {env['cpu']} ({env['mitsuba_variant']})" if env else ""

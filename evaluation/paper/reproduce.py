@@ -57,9 +57,21 @@ import numpy as np
 
 from ... import __version__
 from ...errors import UserError
+from ...estimator import render_specular, separate_capture
+from ...files.dotted import get_dotted
 from ...files.figures import panel_grid, save_png, tonemap
 from ...files.jsonable import jsonable
+from ...files.outputs import check_files_in, check_folder, make_folder
+from ...files.yamlfile import load_yaml_file
 from ...physics.polarization import through_polarizer
+from ..engine.environment import PACKAGE_ROOT, code_version, collect
+from ..engine.provenance import record
+from ..engine.run import check_resumable, row_estimate, run_sweep, sweep_inputs, task_captures
+from ..engine.store import RENDERS, read_results
+from ..engine.sweep import load_sweep
+from ..scoring.metrics import capture_name, one_lamp_position
+from . import fidelity as pf
+from .markdown import markdown
 
 #: The paper's own numbers, quoted with their section (never computed here).
 PAPER: dict[str, dict[str, Any]] = {
@@ -92,9 +104,7 @@ REPORTED = ("lamp_position_error_m", "lamp_position_error_pct", "direction_error
 
 def sweeps_folder() -> Path:
     """``sweeps/paper/`` of the checkout nearlight runs from (the package's root folder)."""
-    from ... import __file__ as root
-
-    folder = Path(root).resolve().parent / "sweeps" / "paper"
+    folder = PACKAGE_ROOT / "sweeps" / "paper"
     if not folder.is_dir():
         raise UserError(f"{folder}: the paper's sweep files are missing (reproduce runs from a checkout of "
                         "nearlight: `bash scripts/setup` installs it editable)")
@@ -135,8 +145,6 @@ class Experiment:
 
     def captures(self, row: Any) -> tuple[Any, Any]:
         """The noise-free render of ``row`` (from the engine's cache) and the capture its method saw."""
-        from ..engine.run import task_captures
-
         return task_captures(self.sweep, self.task(row), self.folder, self.cache_dir)
 
     def figure(self, name: str, panels: list, **kw: Any) -> str:
@@ -145,15 +153,11 @@ class Experiment:
 
     def header(self) -> dict[str, Any]:
         """Where the experiment's numbers come from: sweep file, results folder, scene, code versions."""
-        from ..engine.run import sweep_inputs
-
         source, *scene_file = sweep_inputs(self.sweep)
         root = sweeps_folder().parent.parent
         if scene_file:
             scene = str(scene_file[0].resolve().relative_to(root))
         else:  # an inline scene
-            from ...files.yamlfile import load_yaml_file
-
             scene = load_yaml_file(source, what="sweep file")["scene"]
         return {
             "sweep": str(source.relative_to(root)),
@@ -176,8 +180,6 @@ def _method_row(row: Any, truth: Mapping[str, Any]) -> dict[str, Any]:
     ``ks_in_truth_units`` divides it back out with the true intensity (``I_lamp / 2``
     behind the ideal polarizer) so that it reads beside the truth and the paper's Ks**.
     """
-    from ..engine.run import row_estimate
-
     est = row_estimate(row)
     reaching = through_polarizer(truth["lamp_intensity"])
     return {
@@ -197,17 +199,12 @@ def _method_row(row: Any, truth: Mapping[str, Any]) -> dict[str, Any]:
 def _specular_views(capture: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Original (no analyzer), separated diffuse and specular images, ``[H, W, 3]`` each (corrected for the
     extinction ratios the capture's ``rig`` states, as the estimators' separation is)."""
-    from ...estimator import separate_capture
-
     spec, diff = separate_capture(capture)
     return spec + diff, diff, spec
 
 
 def _resynth(capture: Any, row: Any) -> np.ndarray:
     """The specular image a row's estimate predicts (black for a failed task)."""
-    from ...estimator import render_specular
-    from ..engine.run import row_estimate
-
     if row["status"] != "ok":
         return np.zeros((capture.height, capture.width, 3))
     return np.nan_to_num(np.asarray(render_specular(capture, row_estimate(row)), dtype=float))
@@ -215,8 +212,6 @@ def _resynth(capture: Any, row: Any) -> np.ndarray:
 
 def _truth(capture: Any) -> dict[str, Any]:
     """The truth a section records: the one lamp and the BSDF (a one-line UserError for several lamps)."""
-    from ..scoring.metrics import capture_name, one_lamp_position
-
     one_lamp_position(capture.truth, where=capture_name(capture), what="the paper reproduction")
     return {"lamp_position": capture.truth["lamp_position"], "bsdf": capture.truth["bsdf"]}
 
@@ -291,8 +286,6 @@ def object_view(ex: Experiment, title: str) -> dict[str, Any]:
 
 def near_vs_distant_view(ex: Experiment) -> dict[str, Any]:
     """Error vs the lamp's distance from the board centre (the ``lamp_distance`` axis), per method."""
-    from ...files.dotted import get_dotted
-
     out, truths = [], {}
     for _, r in ex.rows.iterrows():
         task = ex.task(r)
@@ -375,8 +368,6 @@ def paper_first_stage_pct() -> float:
 def _distributions(ex: Experiment) -> dict[str, Any]:
     """Per method: the error distribution over every (layout, jitter) sample, per layout, and over the two
     halves of the jitter samples (first half of the jitter labels vs the second: how stable it is)."""
-    from .fidelity import distribution
-
     ref = paper_first_stage_pct()
     jitters = [label for label, _ in ex.sweep.axes[JITTER]]
     halves = (jitters[: len(jitters) // 2], jitters[len(jitters) // 2:])
@@ -387,10 +378,10 @@ def _distributions(ex: Experiment) -> dict[str, Any]:
                           for v, s in zip(df["lamp_position_error_pct"], df["status"])]
         out[label] = {
             "kind": VARIANT_KIND.get(label, label),
-            "all": distribution(err(sel), reference=ref),
-            "layouts": {str(lay): distribution(err(sel[sel[LAYOUT] == lay]), reference=ref)
+            "all": pf.distribution(err(sel), reference=ref),
+            "layouts": {str(lay): pf.distribution(err(sel[sel[LAYOUT] == lay]), reference=ref)
                         for lay, _ in ex.sweep.axes[LAYOUT]},
-            "halves": [{"jitters": h, **distribution(err(sel[sel[JITTER].isin(h)]), reference=ref)}
+            "halves": [{"jitters": h, **pf.distribution(err(sel[sel[JITTER].isin(h)]), reference=ref)}
                        for h in halves if h],
         }
     return out
@@ -415,8 +406,6 @@ def _layouts(ex: Experiment) -> dict[str, Any]:
 
 def first_stage_view(ex: Experiment) -> dict[str, Any]:
     """§4.1 first stage over camera layouts × sub-pixel jitter; the paper_fidelity numbers; the E_p figure."""
-    from . import fidelity as pf
-
     layout = "paper-33deg" if "paper-33deg" in set(ex.rows[LAYOUT]) else ex.rows[LAYOUT].iloc[0]
     first = ex.rows[ex.rows[LAYOUT] == layout].iloc[0]  # the scene's own layout (the mirror direction)
     _, seen = ex.captures(first)
@@ -506,16 +495,12 @@ REPORT_FILES: dict[str, str] = {
 
 def load_sweeps(*, quick: bool = False) -> dict[str, Any]:
     """``{experiment: Sweep}`` of :data:`EXPERIMENTS`, with the ``quick`` profile when asked."""
-    from ..engine.sweep import load_sweep
-
     folder = sweeps_folder()
     return {key: load_sweep(folder / file, profile=QUICK if quick else None) for key, (file, _) in EXPERIMENTS.items()}
 
 
 def _profile(name: str, sweeps: Mapping[str, Any]) -> dict[str, Any]:
     """What sets a run's size, read from the sweeps: image size, analyzer angles, the distances."""
-    from ...files.dotted import get_dotted
-
     scene = sweeps["board"].tasks[0].scene
     return {
         "name": name,
@@ -532,8 +517,6 @@ SHARED_RENDERS = {"first_stage_corrected": "first_stage"}
 def _cache(key: str, folders: Mapping[str, Path], cache_dir: str | Path | None | bool) -> str | Path | None | bool:
     """The render cache of experiment ``key``: ``cache_dir``, but with the default (True, each results
     folder's ``renders/``) an experiment of :data:`SHARED_RENDERS` re-uses the other's renders."""
-    from ..engine.store import RENDERS
-
     if cache_dir is True and key in SHARED_RENDERS and SHARED_RENDERS[key] in folders:
         return folders[SHARED_RENDERS[key]] / RENDERS
     return cache_dir
@@ -569,13 +552,6 @@ def reproduce(
     Path
         ``out / "paper_reproduction.md"``.
     """
-    from ...files.outputs import check_files_in, check_folder, make_folder
-    from ..engine.run import check_resumable, run_sweep, sweep_inputs
-    from ..engine.environment import code_version, collect
-    from ..engine.provenance import record
-    from .markdown import markdown
-    from ..engine.store import read_results
-
     out = Path(out)
     check_folder(out, what="report folder")
     check_folder(out / "figures", what="figures folder")

@@ -47,6 +47,7 @@ import dataclasses
 from typing import Any
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 #: Gate radius as a fraction of a true lamp's distance from its highlight point (see the module docstring).
 GATE_FRACTION = 0.20
@@ -135,8 +136,6 @@ def match_lamps(est: Any, true: Any, gate: Any = None) -> Matching:
         usable = np.isfinite(d) & (d <= radius[None, :])  # NaN radius or distance: False
     pairs = np.zeros((0, 2), dtype=int)
     if usable.any():
-        from scipy.optimize import linear_sum_assignment
-
         big = (min(k, m) + 1) * (float(d[usable].max()) + 1.0)  # dearer than every in-gate assignment
         rows, cols = linear_sum_assignment(np.where(usable, d, big))
         keep = usable[rows, cols]

@@ -36,9 +36,13 @@ from typing import Any
 
 import numpy as np
 
+from ...errors import UserError
+from ...estimator import Estimate
+from ...estimator.highlights import segment_highlights
 from ...physics.polarization import through_polarizer
 from ...physics.reflectance import LOBES, mitsuba_ts_sigma, shading_geometry, ts_sigma
 from .independent_resynthesis import fitted_stage, resynthesize
+from .matching import gate_radii, match_lamps
 
 #: Metric columns (all "lower is better"), in table order, with their units.
 METRICS: dict[str, str] = {
@@ -364,7 +368,6 @@ def truth_estimate(capture: Any) -> Any:
     truth = capture.truth
     bsdf = truth["bsdf"]
     intensity = np.broadcast_to(np.asarray(truth.get("lamp_intensity", 2.0), dtype=float), (3,))
-    from ...estimator import Estimate
 
     return Estimate(
         method="truth",
@@ -415,7 +418,6 @@ def one_lamp_position(truth: Mapping[str, Any], *, where: str, what: str) -> np.
     """
     if "lamp_position" in truth:
         return np.asarray(truth["lamp_position"], dtype=float).reshape(3)
-    from ...errors import UserError
 
     n = len(truth.get("lamps") or ())
     raise UserError(f"{where}: {what} expects a capture with one lamp; it has {n} lamps (truth.lamps)")
@@ -486,8 +488,6 @@ def lamp_scores(capture: Any, estimate: Any) -> dict[str, Any]:
         several true lamps the per-lamp columns (:data:`PER_LAMP_COLUMN`) and
         ``highlights_true`` (:func:`_highlights_true`).
     """
-    from .matching import gate_radii, match_lamps
-
     lamps = true_lamps(capture.truth)
     found = estimated_lamps(estimate)
     origins = np.array([highlight_point(capture.P, capture.N, capture.camera.position, t) for t in lamps])
@@ -527,8 +527,6 @@ def _highlights_true(capture: Any) -> float:
     reads 1, so a sweep over their separation shows where they merge beside
     which methods still find both lamps.
     """
-    from ...estimator.highlights import segment_highlights
-
     specular = capture.extra.get("truth_specular")
     if specular is None:
         return math.nan

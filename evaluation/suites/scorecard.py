@@ -33,9 +33,21 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ...capture import read_capture
 from ...errors import UserError
+from ...files.atomic import write_json, write_text
+from ...files.digests import stable_hash
+from ...files.figures import save_png
+from ...files.jsonable import jsonable
+from ...files.outputs import check_file_out, check_folder
+from ..engine.environment import code_version
+from ..engine.provenance import record
+from ..engine.store import SWEEP_JSON, ResultStore, read_sweep_json, set_aside_damaged_parts
+from ..engine.sweep import check_method
+from ..engine.tasks import blank_row, failed_row, run_method
+from ..engine.workers import completed, executing
 from ..scoring.metrics import ESTIMATE_COLUMNS, INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
-from .suite import INPUT, TRUTH, checksum_problems, read_manifest, strip_truth
+from .suite import INPUT, MANIFEST, TRUTH, checksum_problems, read_manifest, strip_truth
 
 #: Metric -> (thresholds, as the metric's values; label of a threshold). The lamp: % of the distance from
 #: the highlight point; σ and Ks: relative errors 0.5 %, 1 %, 2 %, 5 %, 10 % (the issue's ladder).
@@ -73,9 +85,6 @@ def score_case(case: Mapping[str, Any], *, method: str, options: Mapping[str, An
         ``status`` (``ok``; ``failed``: the estimate refused by :mod:`nearlight.estimator.sanity`; ``error``), ``error``, the :data:`METRICS` and ``INFO_COLUMNS``
         (NaN when not computed), ``runtime_s`` (s, the method alone). Never raises.
     """
-    from ...capture import read_capture
-    from ..engine.tasks import blank_row, failed_row, run_method
-
     row = blank_row()
     stage = "read"
     try:
@@ -97,34 +106,16 @@ def method_label(method: str, options: Mapping[str, Any]) -> str:
     return method + (f"[{','.join(f'{k}={v}' for k, v in sorted(options.items()))}]" if options else "")
 
 
-def check_method(method: str, options: Mapping[str, Any]) -> None:
-    """Raise :class:`UserError` for an unknown method or options it does not declare (before any work)."""
-    from ...estimator import METHODS, load_method
-    from ...estimator.api import EXTRA_METHODS
-    from ...estimator.options import check_options
-
-    if ":" not in method and method not in METHODS and method not in EXTRA_METHODS:
-        raise UserError(f"--method {method!r}: unknown method "
-                        f"(expected one of {', '.join([*METHODS, *EXTRA_METHODS])} or module:function)")  # fmt: skip
-    check_options(load_method(method), dict(options), method=method)
-
-
 def _run_hash(manifest: Mapping[str, Any], method: str, options: Mapping[str, Any]) -> str:
-    from .suite import stable_hash
-
     return stable_hash([manifest["suite"], manifest["version"], manifest["cases_hash"], method, dict(options)])
 
 
 def check_score_out(out: str | Path, manifest: Mapping[str, Any], method: str, options: Mapping[str, Any]) -> Path:
     """Raise :class:`UserError` unless ``out`` may hold this score run: a folder (or creatable) that holds
     no results or this run's, and whose scorecard files, when there, are nearlight's. Nothing is written."""
-    from ...files.outputs import check_file_out, check_folder
-    from ..engine.store import MANIFEST as RUN_MANIFEST
-    from ..engine.store import read_manifest as read_run_manifest
-
     out = check_folder(out, what="score folder")
-    if (out / RUN_MANIFEST).exists():
-        old = read_run_manifest(out)
+    if (out / SWEEP_JSON).exists():
+        old = read_sweep_json(out)
         if old.get("sweep_hash") != _run_hash(manifest, method, options):
             raise UserError(f"{out}: holds another run ({old.get('name')!r}); choose another --out or remove it")
     for name, kind in ((SCORECARD_PNG, "png"), (SCORECARD_JSON, "scorecard-json"), (SCORECARD_MD, "scorecard-md")):
@@ -162,14 +153,10 @@ def score_suite(
     counts : dict
         ``ran``, ``skipped``, ``failed``.
     """
-    from ..engine.workers import completed, executing
-    from ..engine.environment import code_version
-    from ..engine.store import ResultStore, set_aside_damaged_parts
-
     options = dict(options or {})
     suite_dir = Path(suite_dir)
     manifest = read_manifest(suite_dir)
-    check_method(method, options)
+    check_method(method, options, where="--method")
     out = check_score_out(out, manifest, method, options)
     problems = checksum_problems(suite_dir, manifest)
     if problems:
@@ -209,8 +196,6 @@ def score_suite(
     elif (out / SCORECARD_JSON).is_file():  # a re-run that scored nothing keeps the wall time of the run that did
         card["wall_s"] = json.loads((out / SCORECARD_JSON).read_text()).get("wall_s")
     if todo:  # a re-run that scored nothing leaves the record of the run that made the rows
-        from ..engine.provenance import record
-
         record(out, command=command or f"nearlight score {suite_dir} --method {method} --out {out}",
                entry_modules=[__name__])  # fmt: skip
     write_scorecard(card, out)
@@ -224,8 +209,6 @@ ROW_COLUMNS = ("task_id", "task_index", "sweep", "seed", "noisy", "method", "ren
 
 def _check_category_names(suite_dir: Path, manifest: Mapping[str, Any]) -> None:
     """A (hand-edited) manifest's category named like a row column (``task_id``: the row's file name) is refused."""
-    from .suite import MANIFEST
-
     for i, c in enumerate(manifest["cases"]):
         clash = sorted(set(c["categories"]) & set(ROW_COLUMNS))
         if clash:
@@ -348,7 +331,6 @@ def scorecard_markdown(card: Mapping[str, Any]) -> str:
 
 def scorecard_figure(card: Mapping[str, Any], path: Path) -> Path:
     """Recall against threshold: one row of panels per category (and ``all``), one column per metric."""
-    from ...files.figures import save_png
     import matplotlib
 
     matplotlib.use("Agg")
@@ -385,12 +367,9 @@ def scorecard_figure(card: Mapping[str, Any], path: Path) -> Path:
 def write_scorecard(card: Mapping[str, Any], out: Path) -> list[Path]:
     """Write ``scorecard.json``, ``scorecard.md`` and ``scorecard.png`` into ``out`` (checked beforehand
     by :func:`check_score_out`); returns their paths."""
-    from ...files.atomic import atomic_write, write_json
-    from ...files.jsonable import jsonable
-
     paths = [write_json(out / SCORECARD_JSON, jsonable(card))]
     text = scorecard_markdown(card)
-    atomic_write(out / SCORECARD_MD, lambda tmp: Path(tmp).write_text(text))
+    write_text(out / SCORECARD_MD, text)
     paths.append(out / SCORECARD_MD)
     paths.append(scorecard_figure(card, out / SCORECARD_PNG))
     return paths

@@ -33,17 +33,31 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
-import hashlib
 import json
 import math
+import os
+import shutil
 from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StrictBool, StrictInt, field_validator
 
-from ...errors import UserError
-from ..engine.sweep import stable_hash  # noqa: F401  (one hash for task ids, sweeps, suites and cases; re-exported)
+from ... import __version__
+from ...capture import read_capture, write_capture
+from ...errors import UserError, one_line
+from ...files.atomic import write_json
+from ...files.digests import file_sha256, stable_hash
+from ...files.jsonable import jsonable
+from ...files.outputs import CAPTURE_FILES, check_folder, is_capture_dir
+from ...files.schema import check_name, check_relative, inside, validate
+from ...files.yamlfile import load_yaml_mapping
+from ..engine.environment import code_version, collect
+from ..engine.run import task_payload
+from ..engine.sweep import load_sweep
+from ..engine.tasks import noisy_capture
+from ..engine.workers import completed, executing
 
 #: The manifest's ``format``.
 FORMAT = "nearlight-suite/1"
@@ -152,8 +166,6 @@ def load_suite(path: str | Path, *, check_pin: bool = True) -> Suite:
     UserError
         One line naming the file and key.
     """
-    from ...files.yamlfile import load_yaml_mapping
-
     p = Path(path)
     doc = load_yaml_mapping(p, what="suite file", keys="name, version, scene, axes, seeds")
     if "methods" in doc:
@@ -197,8 +209,6 @@ def load_suite(path: str | Path, *, check_pin: bool = True) -> Suite:
 
 def _part_sweep(path: Path, doc: Mapping[str, Any], part: str | None) -> Any:
     """The sweep of one part (``doc``: sweep keys without ``methods``), errors naming ``path`` and the part."""
-    from ..engine.sweep import load_sweep
-
     doc = dict(doc)
     if isinstance(doc.get("scene"), str):  # a scene file is relative to the suite file
         doc["scene"] = str(path.parent / doc["scene"])
@@ -258,15 +268,6 @@ def _part_sweeps(path: Path, doc: Mapping[str, Any]) -> dict[str | None, Any]:
 
 
 # --------------------------------------------------------------------------- files and digests
-
-
-def sha256_file(path: str | Path) -> str:
-    """Hex sha256 of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _block_means(a: np.ndarray, grid: int) -> list[float | None]:
@@ -373,9 +374,6 @@ def build_case(payload: Mapping[str, Any], *, renderer: Any, cache_dir: str | No
         ``files`` (path relative to ``folder`` -> sha256) and ``digests`` (``input`` / ``truth`` ->
         :func:`image_digest`).
     """
-    from ...capture import write_capture
-    from ..engine.tasks import noisy_capture
-
     clean = renderer.render(payload["scene"], cache_dir=None if cache_dir is None else Path(cache_dir))
     observed = strip_truth(noisy_capture(clean, payload))
     root = Path(folder)
@@ -392,25 +390,18 @@ def case_record(root: Path) -> dict[str, Any]:
     """``files`` (sha256 of each capture file of the case's ``input`` and ``truth``, relative paths) and
     ``digests`` of a case folder. Only the captures' own files: a scratch folder an interrupted write left
     beside them (``.input.<random>.partial``) is never vouched for."""
-    from ...capture import read_capture
-    from ...files.outputs import CAPTURE_FILES
-
-    files = {f"{sub}/{name}": sha256_file(root / sub / name) for sub in (INPUT, TRUTH) for name in sorted(CAPTURE_FILES)}
+    files = {f"{sub}/{name}": file_sha256(root / sub / name) for sub in (INPUT, TRUTH) for name in sorted(CAPTURE_FILES)}
     digests = {sub: image_digest(read_capture(root / sub)) for sub in (INPUT, TRUTH)}
     return {"files": files, "digests": digests}
 
 
 def _case_done(root: Path) -> bool:
-    from ...files.outputs import is_capture_dir
-
     return is_capture_dir(root / INPUT) and is_capture_dir(root / TRUTH)
 
 
 def check_build_out(out: str | Path, suite: Suite) -> Path:
     """Raise :class:`UserError` unless ``out`` is creatable, an empty folder, or a build of this suite
     (resumed). Nothing is written."""
-    from ...files.outputs import check_folder
-
     out = check_folder(out, what="suite folder")
     if out.is_dir() and any(p.name != LOCK for p in out.iterdir()):
         manifest = out / MANIFEST
@@ -467,7 +458,6 @@ def build_lock(out: Path) -> Iterator[None]:
     same time is refused in one line. The kernel releases the lock when the process ends, also on SIGKILL,
     so a killed build never blocks the next one."""
     import fcntl
-    import os
 
     path = out / LOCK
     try:
@@ -487,11 +477,6 @@ def build_lock(out: Path) -> Iterator[None]:
 
 def _build_locked(suite: Suite, out: Path, *, workers: int, scheduler: Any, progress: bool,
                   cache_dir: str | Path | None) -> tuple[Path, dict[str, int]]:  # fmt: skip
-    from ...files.atomic import write_json
-    from ...files.jsonable import jsonable
-    from ..engine.run import task_payload
-    from ..engine.workers import completed, executing
-
     if not (out / MANIFEST).is_file():  # marks the folder as this suite's (incomplete) build: resumable
         write_json(out / MANIFEST, jsonable(manifest_doc(suite, {})))
     renderer = suite.renderer
@@ -523,10 +508,6 @@ def _build_locked(suite: Suite, out: Path, *, workers: int, scheduler: Any, prog
 def _remove_partial_case(root: Path) -> None:
     """Remove what an interrupted build left of one case: only capture folders and the scratch folders of
     their writes (``.input.<random>.partial`` / ``.old``: nearlight's)."""
-    import shutil
-
-    from ...files.outputs import is_capture_dir
-
     for sub in (INPUT, TRUTH):
         if is_capture_dir(root / sub):
             shutil.rmtree(root / sub)
@@ -538,9 +519,6 @@ def _remove_partial_case(root: Path) -> None:
 def manifest_doc(suite: Suite, records: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
     """The manifest of a built suite (docs/benchmark-suites.md names every field); ``complete`` is
     false, and the cases carry no ``files`` and ``digests``, until every case has its record."""
-    from ... import __version__
-    from ..engine.environment import code_version, collect
-
     return {
         "format": FORMAT,
         "suite": suite.name,
@@ -586,13 +564,11 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
 def read_manifest_file(path: str | Path) -> dict[str, Any]:
     """A suite manifest file, validated (:class:`_Manifest`: every key's type, case ids plain names, case
     folders and file names relative paths inside the suite), one line naming the key otherwise."""
-    from ...files.schema import validate
-
     path = Path(path)
     try:
         doc = json.loads(path.read_bytes().decode("utf-8"))
     except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
-        raise UserError(f"{path}: not a readable suite manifest ({' '.join(str(exc).split())[:120]})") from None
+        raise UserError(f"{path}: not a readable suite manifest ({one_line(exc)[:120]})") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise UserError(f"{path}: format: expected {FORMAT!r} (a manifest written by nearlight suite build)")
     if doc.get("complete") is False:
@@ -605,12 +581,6 @@ def read_manifest_file(path: str | Path) -> dict[str, Any]:
 @functools.cache
 def _manifest_models() -> tuple[type, type]:
     """The pydantic models of a manifest (built on first use: pydantic is imported only by readers)."""
-    from typing import Annotated, Literal
-
-    from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StrictBool, StrictInt, field_validator
-
-    from ...files.schema import check_name, check_relative
-
     Name = Annotated[str, AfterValidator(check_name)]
     Relative = Annotated[str, AfterValidator(check_relative)]
     Sha256 = Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]
@@ -666,8 +636,6 @@ def _manifest_models() -> tuple[type, type]:
 
 def checksum_problems(folder: str | Path, manifest: Mapping[str, Any]) -> list[str]:
     """One line per file of the manifest that is missing or whose sha256 differs (empty: all good)."""
-    from ...files.schema import inside
-
     folder = Path(folder)
     problems = []
     for case in manifest["cases"]:
@@ -676,7 +644,7 @@ def checksum_problems(folder: str | Path, manifest: Mapping[str, Any]) -> list[s
             f = inside(root, rel, where=f"{folder / MANIFEST}: cases.{case['id']}.files")
             if not f.is_file():
                 problems.append(f"{f}: missing")
-            elif sha256_file(f) != sha:
+            elif file_sha256(f) != sha:
                 problems.append(f"{f}: checksum mismatch (sha256 differs from {folder / MANIFEST})")
     return problems
 

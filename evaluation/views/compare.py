@@ -49,7 +49,10 @@ import pandas as pd
 
 from ...errors import UserError
 from ...files.atomic import write_json
-from ..engine.store import read_environments, read_manifest, read_results
+from ...files.jsonable import jsonable
+from ...files.outputs import check_file_out
+from ..engine.environment import differences
+from ..engine.store import read_environments, read_sweep_json, read_results
 from ..scoring.metrics import INFO_COLUMNS, LOBE_COLUMN, METRICS, PER_LAMP_COLUMN
 
 #: Metrics compared (``runtime_s`` only on request; ``specular_rmse`` is in radiance units whose scale
@@ -322,14 +325,12 @@ def compare_dirs(
     lines : list of str
         What to print: notes, environment differences, every check, a summary.
     """
-    from ...files.outputs import check_file_out
-
     if json_out is not None:  # before any work: a file nearlight did not write is never replaced
         check_file_out(json_out, "comparison", flag="--json")
     new_dir, base_dir = Path(new_dir), Path(base_dir)
     new, new_complete = read_results(new_dir)
     base, _ = read_results(base_dir)
-    mn, mb = read_manifest(new_dir), read_manifest(base_dir)
+    mn, mb = read_sweep_json(new_dir), read_sweep_json(base_dir)
     axes = mb.get("axes")
     lines = []
     if _is_score(new) != _is_score(base):
@@ -350,7 +351,6 @@ def compare_dirs(
             f"{', '.join(axes or ['config columns'])} and method"
         )
     env_new, env_base = read_environments(new_dir), read_environments(base_dir)
-    from ..engine.environment import differences
 
     diffs = differences(env_new[-1] if env_new else None, env_base[-1] if env_base else None)
     lines.append("environment: " + ("same as the baseline's" if not diffs else f"{len(diffs)} difference(s)"))
@@ -372,7 +372,5 @@ def compare_dirs(
             "environment_differences": diffs,
             "checks": [{**dataclasses.asdict(c), "regression": c.regression} for c in checks],
         }  # fmt: skip
-        from ...files.jsonable import jsonable
-
         write_json(json_out, jsonable(doc))
     return checks, lines

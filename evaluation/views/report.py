@@ -30,14 +30,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ...errors import UserError
 from ..engine.environment import code_version
 from ..scoring.matching import GATE_FRACTION
 from ..scoring.metrics import COUNTED_COLUMN, LAMP_COUNT_COLUMNS, METRICS, PER_LAMP_COLUMN
 from .one_at_a_time import LABEL_AXES, SPLIT, label_table, markdown_tables, plot_heatmap
 from .luck import LUCK_PNG, luck_table, plot_luck
 from ..engine.provenance import record
-from ..engine.store import MANIFEST, read_manifest, read_results
+from ..engine.store import SWEEP_JSON, read_sweep_json, read_results
+from ...files.atomic import write_text
 from ...files.figures import save_png
 from ...files.outputs import check_files_in, make_folder
 
@@ -293,8 +293,8 @@ def write_report(
     """
     results_dir = Path(results_dir)
     df, complete = read_results(results_dir)
-    manifest = results_dir / MANIFEST
-    info = read_manifest(results_dir) if manifest.exists() else {}
+    manifest = results_dir / SWEEP_JSON
+    info = read_sweep_json(results_dir) if manifest.exists() else {}
     axes = [a for a in info.get("axes", []) if isinstance(a, str) and a in df.columns]
     varied = [a for a in axes if df[a].nunique() > 1]
     labelled = [a for a in axes if a in LABEL_AXES]
@@ -305,15 +305,15 @@ def write_report(
     make_folder(folder, what="report folder")
 
     overall = stats(df, ["method"])
-    _write_text(folder / "overall.csv", overall.to_csv(index=False))
+    write_text(folder / "overall.csv", overall.to_csv(index=False), what="the report")
     frames = [stats(df, [a, "method"]).rename(columns={a: "value"}).assign(axis=a) for a in varied]
     by_axis = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
     if not by_axis.empty:
         by_axis["value"] = by_axis["value"].astype(str)
         by_axis = by_axis[["axis", "value", "method", "metric", "n", "mean", "median", "p90"]]
-    _write_text(folder / "by_axis.csv", by_axis.to_csv(index=False))
+    write_text(folder / "by_axis.csv", by_axis.to_csv(index=False), what="the report")
     bound = crlb_table(df, axes)
-    _write_text(folder / "crlb.csv", bound.to_csv(index=False))
+    write_text(folder / "crlb.csv", bound.to_csv(index=False), what="the report")
 
     counts = df.groupby("method", sort=False)["status"].agg(tasks="size", failed=lambda s: int((s != "ok").sum()))
     md = [f"# Sweep report: {info.get('name', results_dir.name)}", ""]
@@ -325,7 +325,7 @@ def write_report(
            + "; ".join(f"{m} [{METRICS[m]}]" for m in HEADLINE) + ".", "",
            "## Overall", "", _md(counts.reset_index()), "", _md(_wide(overall, ["method"])), ""]
     if not lamps.empty:
-        _write_text(folder / "lamps.csv", lamps.to_csv(index=False))
+        write_text(folder / "lamps.csv", lamps.to_csv(index=False), what="the report")
         plot_lamps(lamps, folder / "lamps.png")
         md += ["## Lamps found", "",
                "Estimated lamps matched to true ones (Hungarian on the position error, within "
@@ -339,7 +339,7 @@ def write_report(
             by = lamps_by_label(df, a)
             if by.empty:
                 continue
-            _write_text(folder / _lamps_by_name(a), by.to_csv(index=False))
+            write_text(folder / _lamps_by_name(a), by.to_csv(index=False), what="the report")
             md += [f"### Every lamp found, by {a}", "",
                    "`highlights`: separate highlights in the noise-free specular image (the estimators' "
                    "segmentation, `nearlight.estimator.highlights.segment_highlights`; 1 where the lamps' highlights "
@@ -347,7 +347,7 @@ def write_report(
                    "of its tasks (failed ones count as not found).", "", _md(_lamps_by_wide(by)), ""]
     tables = [label_table(df, a) for a in labelled]
     if tables:
-        _write_text(folder / "one_at_a_time.csv", pd.concat(tables, ignore_index=True).to_csv(index=False))
+        write_text(folder / "one_at_a_time.csv", pd.concat(tables, ignore_index=True).to_csv(index=False), what="the report")
     for a, table in zip(labelled, tables):
         pooled = [x for x in varied if x not in (a, SPLIT)]
         md += [f"## Which imperfection breaks which method ({a})", "",
@@ -370,7 +370,7 @@ def write_report(
             plot_axis(df, a, folder / png)
             md += [f"![error vs {a}]({png})", ""]
     if not luck.empty:
-        _write_text(folder / "luck.csv", luck.to_csv(index=False))
+        write_text(folder / "luck.csv", luck.to_csv(index=False), what="the report")
         plot_luck(df, axes, folder / LUCK_PNG)
         md += ["## Luck: the spread over seeds without camera noise", "",
                "Configurations without camera or range noise that still ran several seeds draw something per "
@@ -388,14 +388,8 @@ def write_report(
     failed = df[df["status"] != "ok"]
     if len(failed):
         md += ["## Failed tasks", "", _md(failed[["task_index", "method", "error"]].head(50)), ""]
-    _write_text(folder / "summary.md", "\n".join(md))
+    write_text(folder / "summary.md", "\n".join(md), what="the report")
     record(results_dir, command=command or f"nearlight report {results_dir}" + (f" --out {out}" if out else ""),
            entry_modules=[__name__], part="report")
     return folder
 
-
-def _write_text(path: Path, text: str) -> None:
-    try:
-        path.write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise UserError(f"{path}: cannot write the report ({exc.strerror or exc})") from None
