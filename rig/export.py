@@ -69,7 +69,7 @@ def export_rig(capture: Capture, out: str | os.PathLike, *, mosaic: str = "mono"
         ``out``.
     """
     from ..generator.noise import adc_counts, noise_rngs
-    from ..generator.scene import CameraNoise
+    from ..generator.scene import NoiseSpec
 
     out = Path(out)
     if out.exists() or out.is_symlink():
@@ -89,7 +89,7 @@ def export_rig(capture: Capture, out: str | os.PathLike, *, mosaic: str = "mono"
         raise UserError(f"{capture.name}: {W}x{H} pixels: a {mosaic} mosaic needs a width and height that are "
                         f"multiples of {k}")  # fmt: skip
     clean = mosaic_frame(capture, colour=mosaic == "colour")
-    noise = CameraNoise(full_well=full_well, read_noise=read_noise, bits=bits, saturation="auto")
+    noise = NoiseSpec(full_well=full_well, read_noise=read_noise, bits=bits, saturation="auto")
     saturation = auto_saturation(clean)
     rng, _ = noise_rngs(seed)
     z_shot, z_read = rng.standard_normal(clean.shape), rng.standard_normal(clean.shape)

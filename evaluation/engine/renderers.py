@@ -14,7 +14,6 @@ from __future__ import annotations
 import copy
 import inspect
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +21,7 @@ import numpy as np
 
 from ...files.digests import stable_hash
 from ...files.dotted import get_dotted, set_dotted
+from ...files.schema import is_number
 from ...errors import UserError
 from ...files.yamlfile import load_yaml_file
 from ...physics.reflectance import LOBES, convert_bsdf, roughness_for_ts_sigma
@@ -236,23 +236,19 @@ class AnalyticRenderer(Renderer):
         return analytic_capture(**copy.deepcopy(scene))
 
 
-def _number(x: Any) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-
-
 def _analytic_value_ok(kind: str, v: Any) -> bool:
     """Whether ``v`` is a value of ``kind`` (see ``AnalyticRenderer.KINDS``)."""
-    numbers = isinstance(v, (list, tuple)) and all(_number(x) for x in v)
+    numbers = isinstance(v, (list, tuple)) and all(is_number(x) for x in v)
     return {
         "size": lambda: isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 16384,
-        "fov": lambda: _number(v) and 0 < v < 180,
+        "fov": lambda: is_number(v) and 0 < v < 180,
         "vec3": lambda: numbers and len(v) == 3,
         "vec3|none": lambda: v is None or (numbers and len(v) == 3),
-        "rgb|number": lambda: (_number(v) and v >= 0) or (numbers and len(v) == 3 and min(v) >= 0),
+        "rgb|number": lambda: (is_number(v) and v >= 0) or (numbers and len(v) == 3 and min(v) >= 0),
         "rgb": lambda: numbers and len(v) == 3 and min(v) >= 0,
         "angles|none": lambda: v is None or (numbers and len(v) >= 3),
-        "number|list": lambda: _number(v) or (numbers and len(v) > 0),
-        "positive": lambda: _number(v) and v > 0,
+        "number|list": lambda: is_number(v) or (numbers and len(v) > 0),
+        "positive": lambda: is_number(v) and v > 0,
         "bool": lambda: isinstance(v, bool),
         "str": lambda: isinstance(v, str),
     }[kind]()

@@ -19,7 +19,6 @@ import copy
 import dataclasses
 import itertools
 import json
-import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
@@ -30,7 +29,7 @@ from ...errors import UserError
 from ...estimator import METHODS, load_method
 from ...estimator.api import EXTRA_METHODS
 from ...estimator.options import check_options
-from ...files.schema import validate
+from ...files.schema import is_number, validate
 from ...files.yamlfile import load_yaml_mapping
 from ...files.digests import stable_hash
 from ...files.dotted import set_dotted
@@ -295,21 +294,17 @@ def _column_value(label: Any) -> Any:
     return float(label) if isinstance(label, int) and not isinstance(label, bool) else label
 
 
-def _is_number(x: Any) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-
-
 def _check_axis_value(path: str, name: str, label: Any, value: Any) -> None:
     where = f"{path}: axes.{name}: {label!r}:"
-    if name in ("lamp_distance", "roughness") and not (_is_number(value) and value > 0):
+    if name in ("lamp_distance", "roughness") and not (is_number(value) and value > 0):
         raise UserError(f"{where} expected a positive number")
-    if name == "range_noise" and not (_is_number(value) and value >= 0):
+    if name == "range_noise" and not (is_number(value) and value >= 0):
         raise UserError(f"{where} expected a number >= 0 (metres)")
     if name == "polarization" and value not in ("ideal", "fresnel"):
         raise UserError(f"{where} expected 'ideal' or 'fresnel'")
     if name == "analyzer_angles":
         ok = (isinstance(value, int) and not isinstance(value, bool) and value >= 3) or (
-            isinstance(value, list) and len(value) >= 3 and all(_is_number(a) for a in value)
+            isinstance(value, list) and len(value) >= 3 and all(is_number(a) for a in value)
         )
         if not ok:
             raise UserError(f"{where} expected an integer >= 3 or a list of >= 3 angles in degrees")
@@ -317,10 +312,10 @@ def _check_axis_value(path: str, name: str, label: Any, value: Any) -> None:
         if not (value is None or isinstance(value, dict)):
             raise UserError(f"{where} expected null or a mapping of camera noise settings")
         if value is not None:
-            from ...generator.scene import CameraNoise
+            from ...generator.scene import NoiseSpec
 
             try:
-                CameraNoise.model_validate(value)
+                NoiseSpec.model_validate(value)
             except ValidationError as exc:
                 err = exc.errors()[0]
                 raise UserError(f"{where} {'.'.join(map(str, err['loc']))}: {err['msg']}") from None

@@ -42,11 +42,11 @@ def run_method(capture: Any, method: str, options: Mapping[str, Any]) -> Any:
 
 def noisy_capture(clean: Any, task: Mapping[str, Any]) -> Any:
     """The capture the estimator sees: the scene's nuisances, camera noise and range noise, all given the task's
-    seed (:func:`nearlight.generator.nuisances.observe`, as ``nearlight render`` with ``capture.seed``)."""
-    from ...generator.nuisances import nuisances_of, observe
+    seed (:func:`nearlight.generator.nuisances.through_rig`, as ``nearlight render`` with ``capture.seed``)."""
+    from ...generator.nuisances import nuisances_of, through_rig
 
     realism, nuisances = nuisances_of(task.get("scene") or {})
-    return observe(clean, nuisances=None if nuisances.off and realism == "none" else nuisances, realism=realism,
+    return through_rig(clean, nuisances=None if nuisances.off and realism == "none" else nuisances, realism=realism,
                    noise=task["noise"], range_noise=task["range_noise"], seed=task["seed"])  # fmt: skip
 
 

@@ -109,17 +109,17 @@ def camera_noise_variance(stack: np.ndarray, *, noise: Any) -> np.ndarray:
     ----------
     stack : ndarray, shape (K, H, W, 3)
         Clean analyzer stack, radiance.
-    noise : mapping or CameraNoise
+    noise : mapping or NoiseSpec
         The camera noise settings (``full_well``, ``read_noise``, ``bits``, ``saturation``).
 
     Returns
     -------
     ndarray, shape (K, H, W, 3)
     """
-    from ...generator.scene import CameraNoise
+    from ...generator.scene import NoiseSpec
 
-    if not isinstance(noise, CameraNoise):
-        noise = CameraNoise.model_validate(dict(noise))
+    if not isinstance(noise, NoiseSpec):
+        noise = NoiseSpec.model_validate(dict(noise))
     L = np.nan_to_num(np.asarray(stack, dtype=float))
     saturation = auto_saturation(stack) if noise.saturation == "auto" else float(noise.saturation)
     model = sensor_noise(saturation=saturation, full_well=noise.full_well, read_noise=noise.read_noise, bits=noise.bits)
