@@ -6,10 +6,10 @@ default, 4 analyzer angles) with the sensitivity study's camera noise
 bits; ``saturation: auto``; ``none``: the noise-free capture, one seed):
 
 - ``two``: scenes/two_lamps.yaml in closed form, two equal lamps 30° apart as
-  seen from the board's centre (the issue's acceptance: right count on ≥ 95 %
+  seen from the board's centre (the acceptance bar: right count on ≥ 95 %
   of noisy captures, each lamp within 1 % of its distance);
 - ``two-dim``: the same with the second lamp at a quarter of the intensity;
-- ``board``, ``sphere``, ``board-near``: one lamp (the issue: no extra lamp on
+- ``board``, ``sphere``, ``board-near``: one lamp (the bar: no extra lamp on
   ≥ 99 % of configurations).
 
 Per configuration and noise level: how often each count was chosen, the

@@ -115,7 +115,7 @@ SCENE_BREAKS: dict[str, list[Any]] = {
                       {"saturation": "max"}, {"unknown": 1}],  # fmt: skip
     "capture.range_noise_m": [-0.001, "1mm"],
     "capture.seed": [-1, 1.5, "seed"],
-    # nuisances (issue 13)
+    # nuisances
     "realism": ["messy", 3, None],
     "lamp.polarizer_extinction_ratio": [0.9, -1, "ideal"],
     "lamp.anisotropy_k": [-1, "cos"],

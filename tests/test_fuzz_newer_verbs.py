@@ -1,5 +1,5 @@
 """Fuzz layer, part two: the newer verbs (`suite build` / `verify`, `score`, `compare` of scorecards, `gsa`,
-`reproduce --against`, plug-ins), hardened as the older ones (issue 42, point 6).
+`reproduce --against`, plug-ins), hardened as the older ones.
 
 The same rules as :mod:`tests.test_fuzz_inputs` (whose case type, helpers and runner it imports): every
 generated case must exit 2 with exactly one stderr line ``nearlight: error: ...`` naming the culprit, no

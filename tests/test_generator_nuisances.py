@@ -1,4 +1,4 @@
-"""Rig nuisances (issue 13): each one against a closed form, off values bit-identical to the code without them.
+"""Rig nuisances: each one against a closed form, off values bit-identical to the code without them.
 
 Clean renders are small (64×48, one pixel-centre sample: exact for direct
 light) and shared by the module. Golden values come from the closed forms in

@@ -1,4 +1,4 @@
-"""Issue 15 part 3: estimated lamps matched to true ones, and the rows scored through the matching."""
+"""Estimated lamps matched to true ones, and the rows scored through the matching."""
 
 from __future__ import annotations
 

@@ -248,7 +248,7 @@ def test_distribution_counts_failures_above_every_error():
 
 
 def test_the_real_objects_run_on_the_bench_rig_with_their_diagnostics(quick_report):
-    # Issue 13: the bookend and the torus are seen through the bench rig; the sweep's `set` axis adds the
+    # The bookend and the torus are seen through the bench rig; the sweep's `set` axis adds the
     # same scene without depth quantisation and with the ideal rig, shown as labelled rows of the table.
     out, doc = quick_report
     md = (out / "paper_reproduction.md").read_text()

@@ -1,4 +1,4 @@
-"""Captures with several lamps (issue 15): ``analytic_capture_lamps`` and ``truth.lamps`` in capture format v2.
+"""Captures with several lamps: ``analytic_capture_lamps`` and ``truth.lamps`` in capture format v2.
 
 numpy only. Golden values: the one-lamp analytic capture as it was before ``lamps`` existed
 (``analytic_capture_lamps([one])`` must give its images bit for bit, and ``analytic_capture``'s

@@ -1,4 +1,4 @@
-"""Rendering several lamps (issue 15): linearity in the lamps, the closed form, the capture's truth.
+"""Rendering several lamps: linearity in the lamps, the closed form, the capture's truth.
 
 Renders are small (64×48 to 96×72, one pixel-centre sample: exact for direct light from point
 lamps, the generator's own acceptance regime). Golden values:

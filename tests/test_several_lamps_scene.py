@@ -1,4 +1,4 @@
-"""Scene files with several lamps (issue 15): ``lamps:`` lists, ``lamp:`` as a one-element list, ``--set`` on lamps.
+"""Scene files with several lamps: ``lamps:`` lists, ``lamp:`` as a one-element list, ``--set`` on lamps.
 
 No rendering here. Golden values: the scene files themselves (their positions, typed in
 ``scenes/two_lamps.yaml``), and the one-lamp scenes' dumps and render keys as they were before

@@ -1,4 +1,4 @@
-"""Paper fidelity (issue 11): why the paper's first stage errs, in numbers, on analytic captures.
+"""Paper fidelity: why the paper's first stage errs, in numbers, on analytic captures.
 
 Small functions returning dicts of numbers (JSON-ready), for the reproduction
 report to call; each builds noise-free closed-form captures

@@ -28,8 +28,8 @@ Experiments (Hara, Nishino, Nakazawa, Ikeuchi 2002), one sweep file each:
   Fig. 1), measured: the Torrance–Sparrow board with the lamp moved along the
   ray from the board centre (the engine's ``lamp_distance`` axis) from near to
   far; the ``distant`` baseline against the near-field methods.
-* ``first_stage`` (``first_stage.yaml``) — §4.1's first stage as a distribution
-  (issue 11): the Ward board from a declared family of camera layouts × sub-pixel
+* ``first_stage`` (``first_stage.yaml``) — §4.1's first stage as a distribution:
+  the Ward board from a declared family of camera layouts × sub-pixel
   shifts of the camera, ``paper-init`` as printed (origin=peak), from a sub-pixel
   peak and from the true mirror point (ORACLE); median, spread and the paper's
   8.9 % within it, the :mod:`~nearlight.evaluation.paper.fidelity` tables, and

@@ -7,7 +7,7 @@ flicker. The spread of one configuration's errors over those seeds is luck; the
 change of a method's median error from one value of an axis to another
 (lamp distance, roughness, ...) is what the axis does. A method whose luck is
 as large as its axes' effects is set by sampling luck, not by the physics the
-sweep varies (issue 11: the paper's first stage picks the brightest pixel).
+sweep varies (the paper's first stage, which starts at the brightest pixel, is one).
 
 Used by :func:`nearlight.evaluation.views.report.write_report`.
 """
