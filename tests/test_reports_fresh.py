@@ -5,7 +5,7 @@ hash of every nearlight source file in the import closure of that command
 (``provenance.json``). When any of those files changes, the report is stale:
 this test fails and names the files and the command that regenerates it.
 Regression baselines (``*-baseline``) are held to the code by ``nearlight
-compare`` instead (tests/test_evaluation_smoke.py), so here they only have to
+compare`` instead (tests/evaluation/views/test_smoke_baseline.py), so here they only have to
 say what made them.
 """
 

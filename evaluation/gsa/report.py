@@ -30,7 +30,7 @@ from ...files.figures import save_png
 from ...files.outputs import check_files_in, make_folder
 from .study import DesignRun, Input, Study, analyse, outputs
 from ..engine.provenance import record
-from ..views.report import _md
+from ..views.report import frame_table
 from ..engine.store import read_results
 
 #: The report's sub-folder of a design's results folder.
@@ -203,11 +203,11 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
           f"Design: `{design}`, n = {run.design.n}, seed {run.design.seed}, {len(run.samples)} samples, "
           f"{len(run.sweep.tasks)} tasks" + ("" if complete else " (INCOMPLETE: rows missing)") + ".", "",
           "Inputs: " + "; ".join(f"`{i.name}` {_dist(i)}" for i in study.inputs) + ".", "",
-          "## Which input matters most", "", _md(headline(indices, design)), ""]  # fmt: skip
+          "## Which input matters most", "", frame_table(headline(indices, design)), ""]  # fmt: skip
     for metric in metrics:
         png = f"indices_{metric}.png"
         plot_indices(indices, metric, design, folder / png)
-        md += [f"## {metric}", "", _md(_cells(indices, metric, design)), "", f"![indices of {metric}]({png})", ""]
+        md += [f"## {metric}", "", frame_table(_cells(indices, metric, design)), "", f"![indices of {metric}]({png})", ""]
     md += ["## Scatter plots", "", f"{metrics[0]} against each input (one point per sample).", ""]
     for method in methods:
         png = f"scatter_{_safe(method)}.png"

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import UserError
+from ...files.markdown import markdown_table
 from .check import tolerance_text
 
 
@@ -30,12 +31,6 @@ def _num(x: Any, fmt: str = ".3g") -> str:
 def _pct(x: Any) -> str:
     """A relative error as ``12.3 %``, ``n/a`` when there is none (a refused Ks)."""
     return "n/a" if x is None else f"{100 * x:.1f} %"
-
-
-def _table(header: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
 
 
 def _figures(section: dict[str, Any]) -> str:
@@ -97,7 +92,7 @@ not comparable to the truth; they are printed to set them beside the paper's
 σ** and Ks**. Ks is divided by the lamp intensity reaching the board, which the
 estimator cannot know (it folds it into Ks).
 
-{_table(["", "lamp (units)", "error (units)", "error (% of distance)", "σ", "Ks"], rows)}
+{markdown_table(["", "lamp (units)", "error (units)", "error (% of distance)", "σ", "Ks"], rows)}
 
 {_figures(ex)}
 """
@@ -136,7 +131,7 @@ paper's real captures ({noise['bits']}-bit, full well {noise['full_well']:.0f} e
 analyzer stack (figures: the per-pixel cos 2θ fit; each method: its default separation).
 {_rig(ex.get("realism", "none"))}{diagnostic}Lamp positions in metres, world frame.
 {note}
-{_table(["", "lamp (m)", "error (mm)", "error (% of distance)", "σ", "Ks", "σ error", "Ks error"], rows)}
+{markdown_table(["", "lamp (m)", "error (mm)", "error (% of distance)", "σ", "Ks", "σ error", "Ks error"], rows)}
 
 {_figures(ex)}
 """
@@ -174,7 +169,7 @@ axis). First column: the lamp's distance from the board centre; second: its dist
 highlight point, which the errors are relative to. Each cell: lamp position error as % of the
 lamp's distance from the highlight / direction error seen from the highlight.
 
-{_table(["from the board centre (m)", "from the highlight (m)"] + [f"`{m}`" for m in methods], rows)}
+{markdown_table(["from the board centre (m)", "from the highlight (m)"] + [f"`{m}`" for m in methods], rows)}
 
 {_figures(ex)}
 """
@@ -204,11 +199,11 @@ def first_stage_section(doc: dict[str, Any]) -> str:
 
     lay_rows = [[f"`{m}`"] + [per_layout(d["layouts"].get(lay)) for lay in layouts] for m, d, _ in variants]
     fid = ex["fidelity"]
-    flat = _table(["t / t_true", "t (m)", "3 + E_p"],
+    flat = markdown_table(["t / t_true", "t (m)", "3 + E_p"],
                   [[f"{r['factor']:g}", f"{r['t']:.3f}", f"{r['three_plus_ep']:.2e}"] for r in fid["ep_flatness"]["rows"]])
-    tstar = _table(["s", "t*/t", "1/(1 + s)"],
+    tstar = markdown_table(["s", "t*/t", "1/(1 + s)"],
                    [[f"{r['s']:g}", f"{r['t_ratio']:.3f}", _num(r["law"], ".3f")] for r in fid["t_star_curve"]["rows"]])
-    ward = _table(["Dc/t", "t (m)", "TS t*/t", "Ward t*/t", "Ward bias"],
+    ward = markdown_table(["Dc/t", "t (m)", "TS t*/t", "Ward t*/t", "Ward bias"],
                   [[f"{r['dc_over_t']:g}", f"{r['t']:.3f}", f"{r['ts_t_ratio']:.4f}", f"{r['ward_t_ratio']:.4f}",
                     f"{100 * r['ward_bias']:+.1f} %"] for r in fid["ward_bias"]["rows"]])  # fmt: skip
     curves = ex["ep_curves"]
@@ -230,11 +225,11 @@ normal: {lay_text}.{corrected} Errors are % of the lamp's distance from the high
 percentile is the share of samples with an error at most the paper's. A failed task counts as a failure
 (above every error).
 
-{_table(head, rows)}
+{markdown_table(head, rows)}
 
 Median (min–max) per layout:
 
-{_table(["variant"] + [f"`{lay}`" for lay in layouts], lay_rows)}
+{markdown_table(["variant"] + [f"`{lay}`" for lay in layouts], lay_rows)}
 
 **Why** (`nearlight.evaluation.paper.fidelity`, on analytic noise-free captures, no renderer;
 the ray from the exact mirror point, an ORACLE). On a plane E_p hardly depends on t: 3 + E_p along

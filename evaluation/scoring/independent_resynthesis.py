@@ -21,7 +21,7 @@ instead of through an angle; each radiance in a reduced form (``Ks / cos θr``,
 ``ρs √(cos θi / cos θr)``, ``D G / (4 cos θr)``) instead of the BRDF times
 ``cos θi``; GGX's ``(a² − 1) cos²α + 1`` as ``a² cos²α + sin²α`` and its Smith
 term multiplied through by ``cos θ``; Beckmann's Smith term in ``cot θ / a``.
-``tests/test_evaluation_resynthesis.py`` checks that the two agree to float64
+``tests/evaluation/scoring/test_independent_resynthesis.py`` checks that the two agree to float64
 rounding on random geometry for every family, and that the true BSDF
 reproduces the analytic generator's ``truth_specular`` for every family: a
 change to either side that changes the physics shows up as a disagreement

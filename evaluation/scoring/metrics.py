@@ -18,7 +18,7 @@ exception. NaN means "undefined here": a non-finite (NaN or ±inf) estimate or
 truth, a true lamp on the point distances are measured from (no direction, no
 relative distance), a true σ ≤ 0 (no relative error), a true Ks of zero, an
 empty mask, a truth image without a positive peak. Each function's docstring
-names its cases; ``tests/test_evaluation_metrics.py`` runs every metric on
+names its cases; ``tests/evaluation/scoring/test_metrics.py`` runs every metric on
 ``[-1, 0, 1, -inf, inf, nan]`` inputs, and on ±1e308, whose differences
 overflow.
 

@@ -39,6 +39,7 @@ from ...files.atomic import write_json, write_text
 from ...files.digests import stable_hash
 from ...files.figures import save_png
 from ...files.jsonable import jsonable
+from ...files.markdown import markdown_table
 from ...files.outputs import check_file_out, check_folder
 from ..engine.environment import code_version
 from ..engine.provenance import record
@@ -315,15 +316,15 @@ def scorecard_markdown(card: Mapping[str, Any]) -> str:
         unit = "% of the distance" if metric == "lamp_position_error_pct" else "relative"
         pct = metric != "lamp_position_error_pct"
         heads = [f"< {fmt.format(100 * t) + ' %' if pct else fmt.format(t)}" for t in thresholds]
-        lines += ["", f"## {LABELS[metric]} ({metric}, {unit})", "",
-                  "| category | value | n | failed | " + " | ".join(heads) + " | median [95 % CI] |",
-                  "|---|---|---|---|" + "---|" * len(heads) + "---|"]  # fmt: skip
+        rows = []
         for g in card["groups"]:
             s = g[metric]
             lo, hi = s["median_ci95"]
             med = f"{_fmt(s['median'], pct)} [{_fmt(lo, pct)}, {_fmt(hi, pct)}]" + " %"
-            lines.append(f"| {g['category']} | {g['value']} | {g['n']} | {g['failed']} | "
-                         + " | ".join(f"{100 * r:.0f}" for r in s["recall"]) + f" | {med} |")
+            rows.append([str(g["category"]), str(g["value"]), str(g["n"]), str(g["failed"]),
+                         *(f"{100 * r:.0f}" for r in s["recall"]), med])  # fmt: skip
+        lines += ["", f"## {LABELS[metric]} ({metric}, {unit})", "",
+                  markdown_table(["category", "value", "n", "failed", *heads, "median [95 % CI]"], rows)]
     if card.get("errors"):
         lines += ["", "## Failures (first distinct messages)", ""] + [f"- `{e}`" for e in card["errors"]]
     return "\n".join(lines) + "\n"

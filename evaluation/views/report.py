@@ -39,6 +39,7 @@ from ..engine.provenance import record
 from ..engine.store import SWEEP_JSON, read_sweep_json, read_results
 from ...files.atomic import write_text
 from ...files.figures import save_png
+from ...files.markdown import markdown_table
 from ...files.outputs import check_files_in, make_folder
 
 #: Metrics shown in the Markdown tables and plots (all are in the CSV files).
@@ -87,13 +88,12 @@ def crlb_table(df: pd.DataFrame, axes: list[str]) -> pd.DataFrame:
               "ratio_sigma"]]
 
 
-def _md(df: pd.DataFrame, *, floatfmt: str = ".4g") -> str:
-    cols = [str(c) for c in df.columns]
-    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
-    for row in df.itertuples(index=False):
-        cells = [format(v, floatfmt) if isinstance(v, (float, np.floating)) else str(v) for v in row]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+def frame_table(df: pd.DataFrame, *, floatfmt: str = ".4g") -> str:
+    """``df`` as a Markdown table (:func:`~nearlight.files.markdown.markdown_table`): a header of its columns,
+    one line per row, floats formatted by ``floatfmt``, everything else by ``str``."""
+    rows = ([format(v, floatfmt) if isinstance(v, (float, np.floating)) else str(v) for v in row]
+            for row in df.itertuples(index=False))  # fmt: skip
+    return markdown_table([str(c) for c in df.columns], rows)
 
 
 def _wide(st: pd.DataFrame, index: list[str]) -> pd.DataFrame:
@@ -323,7 +323,7 @@ def write_report(
            f"report written by {code_version()}.",
            "Cells: median (90th percentile) over successful tasks. Units: "
            + "; ".join(f"{m} [{METRICS[m]}]" for m in HEADLINE) + ".", "",
-           "## Overall", "", _md(counts.reset_index()), "", _md(_wide(overall, ["method"])), ""]
+           "## Overall", "", frame_table(counts.reset_index()), "", frame_table(_wide(overall, ["method"])), ""]
     if not lamps.empty:
         write_text(folder / "lamps.csv", lamps.to_csv(index=False), what="the report")
         plot_lamps(lamps, folder / "lamps.png")
@@ -334,7 +334,7 @@ def write_report(
                "missed, so the other tables leave such a task out of the lamp medians (their `n` is smaller): "
                "read them with `missed` here. `all_found`: tasks with nothing missed and nothing extra; "
                "`lamp<i>_median_error_pct`: true lamp i's median error where it was matched.", "",
-               _md(lamps), "", "![lamps matched, missed and extra](lamps.png)", ""]
+               frame_table(lamps), "", "![lamps matched, missed and extra](lamps.png)", ""]
         for a in labelled:
             by = lamps_by_label(df, a)
             if by.empty:
@@ -344,7 +344,7 @@ def write_report(
                    "`highlights`: separate highlights in the noise-free specular image (the estimators' "
                    "segmentation, `nearlight.estimator.highlights.segment_highlights`; 1 where the lamps' highlights "
                    "have merged into one blob), a range where the other axes change it; per method, the tasks that found every lamp and nothing extra, "
-                   "of its tasks (failed ones count as not found).", "", _md(_lamps_by_wide(by)), ""]
+                   "of its tasks (failed ones count as not found).", "", frame_table(_lamps_by_wide(by)), ""]
     tables = [label_table(df, a) for a in labelled]
     if tables:
         write_text(folder / "one_at_a_time.csv", pd.concat(tables, ignore_index=True).to_csv(index=False), what="the report")
@@ -359,12 +359,12 @@ def write_report(
                "counted after the median (`, k/n failed`). A run that left a true lamp unmatched (several lamps) "
                "counts the same way and reads `missed a lamp`.", ""]
         for obj, wide in markdown_tables(table, a):
-            md += ([f"### {obj}", ""] if obj else []) + [_md(wide), ""]
+            md += ([f"### {obj}", ""] if obj else []) + [frame_table(wide), ""]
         plot_heatmap(table, a, folder / _heatmap_name(a))
         md += [f"![which imperfection breaks which method ({a})]({_heatmap_name(a)})", ""]
     for a in varied:
         st = stats(df, [a, "method"])
-        md += [f"## By {a}", "", _md(_wide(st, [a, "method"])), ""]
+        md += [f"## By {a}", "", frame_table(_wide(st, [a, "method"])), ""]
         if a not in LABEL_AXES:
             png = _png_name(a)
             plot_axis(df, a, folder / png)
@@ -379,15 +379,15 @@ def write_report(
                "and 90th percentile over configurations; `<axis> effect`: how far the method's median error "
                "moves between that axis's values (max − min, median over the other axes' configurations). "
                "Percentage points. A method whose luck is as large as the axes' effects is set by sampling luck, "
-               "not by what the sweep varies.", "", _md(luck, floatfmt=".3g"), "", f"![luck]({LUCK_PNG})", ""]
+               "not by what the sweep varies.", "", frame_table(luck, floatfmt=".3g"), "", f"![luck]({LUCK_PNG})", ""]
     if not bound.empty:
         md += ["## Cramér–Rao bounds (Gaussian camera noise)", "",
                "RMSE over seeds of each method beside the bound for the same configuration; ratio = RMSE / bound "
                "(1 is the best an unbiased estimator can do). Lamp: metres; sigma: relative.", "",
-               _md(bound), ""]
+               frame_table(bound), ""]
     failed = df[df["status"] != "ok"]
     if len(failed):
-        md += ["## Failed tasks", "", _md(failed[["task_index", "method", "error"]].head(50)), ""]
+        md += ["## Failed tasks", "", frame_table(failed[["task_index", "method", "error"]].head(50)), ""]
     write_text(folder / "summary.md", "\n".join(md), what="the report")
     record(results_dir, command=command or f"nearlight report {results_dir}" + (f" --out {out}" if out else ""),
            entry_modules=[__name__], part="report")

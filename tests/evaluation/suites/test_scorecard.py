@@ -20,7 +20,7 @@ from nearlight.evaluation.scoring.metrics import truth_estimate
 from nearlight.evaluation.suites.scorecard import LADDERS, median_ci, scorecard
 from nearlight.evaluation.suites.suite import read_manifest
 
-from .test_suite_build import N_CASES, write_suite
+from .test_build import N_CASES, write_suite
 
 #: Test-only plug-ins. `oracle` reads the truth from a side file the test writes (oracle.json beside this
 #: module), keyed by the case folder; the rest see only what `score` hands them.

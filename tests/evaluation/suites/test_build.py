@@ -24,7 +24,7 @@ from nearlight.evaluation.suites.suite import (
     read_manifest,
 )
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 #: 2 distances x (noise-free: 1 seed + noisy: 2 seeds) = 6 cases, 32x24 analytic captures.
 SUITE = {
     "name": "tiny-v1",

@@ -61,7 +61,7 @@ def test_a_jittered_sweep_report_has_the_luck_section(tmp_path):
     from nearlight.evaluation.views.report import write_report
     from nearlight.evaluation.engine.sweep import load_sweep
 
-    doc = yaml.safe_load((Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml").read_text())
+    doc = yaml.safe_load((Path(__file__).resolve().parents[3] / "sweeps" / "smoke.yaml").read_text())
     doc.update(seeds=3, methods=["paper-init"], axes={"lamp_distance": [0.3, 0.6]})  # distant: refused on a board
     doc["set"] = {**doc.get("set", {}), "camera.resolution": [40, 30]}
     for jitter, expect in ((0.5, True), (0.0, False)):

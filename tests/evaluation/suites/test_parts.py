@@ -19,9 +19,9 @@ from nearlight.cli import main
 from nearlight.errors import UserError
 from nearlight.evaluation.suites.suite import PART, load_suite, read_manifest
 
-from .test_suite_build import pinned_suite_file
+from .test_build import pinned_suite_file
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 #: Two analytic parts with their own cameras (image sizes, positions) and objects, each with its own
 #: lamp distances; both share the noise axis: board 2 x 2 + sphere 1 x 2 = 6 cases.
 SUITE = {

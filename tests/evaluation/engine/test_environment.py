@@ -8,7 +8,7 @@ from pathlib import Path
 
 from nearlight.evaluation.engine.environment import PACKAGES, collect, differences
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _pins() -> dict[str, str]:

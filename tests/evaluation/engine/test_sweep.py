@@ -171,7 +171,7 @@ def test_realism_axis_and_per_shot_nuisances_run_every_seed():
     nuisance run once."""
     from pathlib import Path
 
-    smoke = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
+    smoke = Path(__file__).resolve().parents[3] / "sweeps" / "smoke.yaml"
     doc = yaml.safe_load(smoke.read_text())
     doc.update(seeds=3, methods=["full"], axes={"realism": ["none", "lab"],
                                                "nuisances.camera.vignetting": [0.0, 0.1]})
@@ -194,7 +194,7 @@ def test_a_jittering_camera_renders_once_per_seed():
     makes the same capture); without jitter nothing changes."""
     from pathlib import Path
 
-    doc = yaml.safe_load((Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml").read_text())
+    doc = yaml.safe_load((Path(__file__).resolve().parents[3] / "sweeps" / "smoke.yaml").read_text())
     doc.update(seeds=[2, 5, 7], methods=["full", "distant"], axes={"camera.jitter_px": [0.0, 0.5]})
     sweep = load_sweep(doc, check_methods=False)
     still = [t for t in sweep.tasks if t.config["camera.jitter_px"] == 0.0]
@@ -210,7 +210,7 @@ def test_a_jittering_camera_renders_once_per_seed():
 def test_an_object_axis_of_another_type_keeps_only_the_placement():
     from pathlib import Path
 
-    doc = yaml.safe_load((Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml").read_text())
+    doc = yaml.safe_load((Path(__file__).resolve().parents[3] / "sweeps" / "smoke.yaml").read_text())
     doc["scene"]["object"]["position"] = [0.0, 0.0, 0.01]
     doc.update(seeds=1, methods=["full"], axes={"object": {"board": {"type": "board", "size": [0.3, 0.3]},
                                                            "sphere": {"type": "sphere", "radius": 0.1}}})
@@ -225,7 +225,7 @@ def test_a_labelled_bsdf_axis_takes_a_mitsuba_material_whole():
     (was "material.kd: unknown key"), while a lobe family of ours keeps it."""
     from pathlib import Path
 
-    sweep = load_sweep(Path(__file__).resolve().parents[1] / "sweeps" / "render_compare.yaml")
+    sweep = load_sweep(Path(__file__).resolve().parents[3] / "sweeps" / "render_compare.yaml")
     material = {t.config["bsdf"]: t.scene["material"] for t in sweep.tasks}
     assert set(material) == {"torrance_sparrow", "ward", "pplastic"}
     assert material["pplastic"]["model"] == "mitsuba" and "kd" not in material["pplastic"]

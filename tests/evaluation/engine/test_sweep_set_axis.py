@@ -10,7 +10,7 @@ import yaml
 from nearlight.errors import UserError
 from nearlight.evaluation.engine.sweep import load_sweep
 
-SMOKE = Path(__file__).resolve().parents[1] / "sweeps" / "smoke.yaml"
+SMOKE = Path(__file__).resolve().parents[3] / "sweeps" / "smoke.yaml"
 
 
 def _smoke(**change):

@@ -218,7 +218,7 @@ def test_a_bad_gsa_file_is_one_line_naming_file_and_key(tmp_path, monkeypatch, c
 
 # --------------------------------------------------------------------------- the shipped study: inputs to scene keys
 
-GLOBAL = Path(__file__).resolve().parents[1] / "sweeps" / "global.yaml"
+GLOBAL = Path(__file__).resolve().parents[3] / "sweeps" / "global.yaml"
 
 
 def test_each_sample_of_the_shipped_study_sets_the_scene_keys_its_inputs_drive():

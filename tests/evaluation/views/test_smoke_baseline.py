@@ -24,7 +24,7 @@ from nearlight.evaluation.engine.run import run_sweep
 from nearlight.evaluation.engine.store import read_results
 from nearlight.evaluation.engine.sweep import load_sweep
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 SMOKE = ROOT / "sweeps" / "smoke.yaml"
 BASELINE = ROOT / "reports" / "smoke-baseline"
 
