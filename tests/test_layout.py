@@ -135,3 +135,16 @@ def test_the_physics_home_imports_no_stage_and_only_numpy():
             third_party = {t for t in tops if t not in sys.stdlib_module_names}
             assert third_party <= {"numpy"}, (name, third_party)
         assert {part_of(t) for t in imported_modules(name, path)} <= {"physics", "errors"}, name
+
+
+def test_no_evaluation_module_name_begins_with_another_in_its_folder():
+    # One job a module, named by its folder and its own name: `report.py` beside `report_luck.py` (or
+    # `suite.py` beside `suite_cli.py`) is a folder the names are standing in for.
+    evaluation = ROOT / "evaluation"
+    folders = [evaluation, *(p for p in evaluation.rglob("*") if p.is_dir() and (p / "__init__.py").is_file())]
+    clashes = []
+    for folder in folders:
+        names = sorted(p.stem for p in folder.glob("*.py") if p.stem != "__init__")
+        clashes += [f"{folder.relative_to(ROOT)}: {a}.py, {b}.py" for a in names for b in names
+                    if a != b and b.startswith(a)]
+    assert len(folders) > 1 and not clashes, clashes
