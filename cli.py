@@ -1,7 +1,7 @@
 """The ``nearlight`` command: one verb per pipeline task.
 
-Each stage package owns its verbs in a ``cli`` module exposing
-``register(subparsers)``, which adds sub-parsers whose ``run`` default is the
+Each stage package (in ``evaluation/``, each folder of it) owns its verbs in a
+``cli`` module exposing ``register(subparsers)``, which adds sub-parsers whose ``run`` default is the
 function to call with the parsed arguments. Registration imports nothing heavy:
 Mitsuba is imported only when a verb that renders runs.
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import UserError, disk_full, one_line
 from ..files.atomic import check_not_full, write_folder
-from ..files.jsonable import jsonable
+from ..files.jsonable import json_text, jsonable
 from ..files.outputs import check_capture_out, is_capture_dir
 from ..files.schema import all_numbers, is_number
 from ..physics.reflectance import every_channel
@@ -695,7 +695,7 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
     path = check_capture_out(path, overwrite=overwrite)
 
     def fill(tmp: Path) -> None:
-        (tmp / JSON_NAME).write_text(json.dumps(capture_json(capture), indent=2) + "\n")
+        (tmp / JSON_NAME).write_text(json_text(capture_json(capture)))
         if OpenEXR.global_thread_count() == 0:
             # OpenEXR compresses on the calling thread by default; its pool of one
             # thread per core writes a 640x480 capture in 0.26 s instead of 0.39 s.

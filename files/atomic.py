@@ -10,7 +10,6 @@ and rig exports (:func:`nearlight.rig.export.export_rig`).
 from __future__ import annotations
 
 import errno
-import json
 import os
 import shutil
 import tempfile
@@ -18,6 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..errors import UserError, disk_full, no_space
+from .jsonable import json_text
 
 
 def atomic_write(path: str | os.PathLike, write: Callable[[str], object], *, suffix: str = ".partial") -> None:
@@ -102,7 +102,7 @@ def write_text(path: str | os.PathLike, text: str, *, what: str = "there") -> Pa
 
 def write_json(path: str | os.PathLike, doc: object, *, what: str = "there") -> Path:
     """Write ``doc`` as JSON indented by 2, with a final newline, at ``path``: :func:`write_text`."""
-    return write_text(path, json.dumps(doc, indent=2) + "\n", what=what)
+    return write_text(path, json_text(doc), what=what)
 
 
 def write_folder(path: str | os.PathLike, fill: Callable[[Path], object], *,

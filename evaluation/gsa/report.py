@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from ...files.atomic import write_text
-from ...files.figures import save_png
+from ...files.figures import pyplot, save_png
 from ...files.outputs import check_files_in, make_folder
 from .study import DesignRun, Input, Study, analyse, outputs
 from ..engine.provenance import record
@@ -97,10 +97,7 @@ def _cells(indices: pd.DataFrame, metric: str, design: str) -> pd.DataFrame:
 
 def plot_indices(indices: pd.DataFrame, metric: str, design: str, path: Path) -> Path:
     """Grouped bars for one metric: an input per group, a method per bar, with the bootstrap intervals."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     g = indices[indices["metric"] == metric]
     inputs = list(dict.fromkeys(g["input"]))
@@ -127,10 +124,8 @@ def plot_indices(indices: pd.DataFrame, metric: str, design: str, path: Path) ->
 def plot_scatter(table: pd.DataFrame, inputs: list[Input], metric: str, method: str, path: Path) -> Path:
     """``metric`` against each input for one method (one panel per input; categorical inputs by label,
     log-uniform ones on a log axis)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
+    import matplotlib.ticker
 
     t = table[table["method"] == method]
     fig, axs = plt.subplots(1, len(inputs), figsize=(2.8 * len(inputs), 2.8), constrained_layout=True, sharey=True)

@@ -46,7 +46,6 @@ angles, fewer distances).
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -58,8 +57,9 @@ import numpy as np
 from ... import __version__
 from ...errors import UserError
 from ...estimator import render_specular, separate_capture
+from ...files.atomic import write_json, write_text
 from ...files.dotted import get_dotted
-from ...files.figures import panel_grid, save_png, tonemap
+from ...files.figures import panel_grid, pyplot, save_png, tonemap
 from ...files.jsonable import jsonable
 from ...files.outputs import check_files_in, check_folder, make_folder
 from ...files.yamlfile import load_yaml_file
@@ -308,10 +308,7 @@ def near_vs_distant_view(ex: Experiment) -> dict[str, Any]:
 
 
 def _distance_plot(rows: list[dict[str, Any]], methods: list[str], path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import matplotlib.ticker
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
@@ -445,10 +442,7 @@ def first_stage_corrected_view(ex: Experiment) -> dict[str, Any]:
 
 def _ep_figure(curves: Mapping[str, Any], path: Path, *, where: str) -> Path:
     """3 + E_p(t) along the peak ray and along the true mirror ray, side by side, t over each ray's true t."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), sharey=True)
     titles = {"peak": "peak ray (printed: brightest pixel)", "mirror": "true mirror ray (ORACLE)"}
@@ -582,9 +576,8 @@ def reproduce(
         "paper": PAPER,
         "experiments": results,
     }
-    (out / "paper_reproduction.json").write_text(json.dumps(jsonable(doc), indent=2) + "\n")
-    md = out / "paper_reproduction.md"
-    md.write_text(markdown(doc))
+    write_json(out / "paper_reproduction.json", jsonable(doc), what="the reproduction")
+    md = write_text(out / "paper_reproduction.md", markdown(doc), what="the reproduction")
     # the report part; each experiment's rows carry the record of the run that made them
     # (OUT/sweeps/<profile>/<name>/provenance.json), which a resumed run leaves as it was
     record(out, command=command, entry_modules=[__name__, "nearlight.evaluation.paper.markdown"],

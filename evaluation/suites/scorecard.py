@@ -37,7 +37,7 @@ from ...capture import read_capture
 from ...errors import UserError
 from ...files.atomic import write_json, write_text
 from ...files.digests import stable_hash
-from ...files.figures import save_png
+from ...files.figures import pyplot, save_png
 from ...files.jsonable import jsonable
 from ...files.markdown import markdown_table
 from ...files.outputs import check_file_out, check_folder
@@ -332,10 +332,7 @@ def scorecard_markdown(card: Mapping[str, Any]) -> str:
 
 def scorecard_figure(card: Mapping[str, Any], path: Path) -> Path:
     """Recall against threshold: one row of panels per category (and ``all``), one column per metric."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     cats = list(dict.fromkeys(g["category"] for g in card["groups"]))
     fig, axs = plt.subplots(len(cats), len(LADDERS), figsize=(3.4 * len(LADDERS), 2.3 * len(cats)),

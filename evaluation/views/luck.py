@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ...files.figures import save_png
+from ...files.figures import pyplot, save_png
 
 #: The report's figure of this section.
 LUCK_PNG = "luck_vs_axes.png"
@@ -85,10 +85,7 @@ def plot_luck(df: pd.DataFrame, axes: list[str], path: Path, *, x_axis: str | No
     """PNG: per method, every noise-free seed's error (dots) against ``x_axis`` (default the first numeric
     varied axis), one configuration's seeds joined by a vertical bar (min to max), configurations of the
     other axes side by side; log scale."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     rows = luck_rows(df, axes)
     config = [a for a in axes if a not in _NOISE_AXES and rows[a].nunique() > 1]

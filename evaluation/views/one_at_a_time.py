@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ...files.figures import save_png
+from ...files.figures import pyplot, save_png
 from ..scoring.metrics import METRICS
 
 #: Axes whose values are named configurations compared one at a time.
@@ -153,10 +153,7 @@ def plot_heatmap(table: pd.DataFrame, axis: str, path: Path) -> None:
 
     Cells are annotated with :func:`cell_text` (compact); a failed (or missed) median is a grey cell.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from matplotlib.colors import LogNorm
     from matplotlib.ticker import FuncFormatter, NullFormatter
 

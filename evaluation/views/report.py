@@ -38,7 +38,7 @@ from .luck import LUCK_PNG, luck_table, plot_luck
 from ..engine.provenance import record
 from ..engine.store import SWEEP_JSON, read_sweep_json, read_results
 from ...files.atomic import write_text
-from ...files.figures import save_png
+from ...files.figures import pyplot, save_png
 from ...files.markdown import markdown_table
 from ...files.outputs import check_files_in, make_folder
 
@@ -106,10 +106,7 @@ def _wide(st: pd.DataFrame, index: list[str]) -> pd.DataFrame:
 
 def plot_axis(df: pd.DataFrame, axis: str, path: Path) -> None:
     """PNG: median (line) and 90th percentile (band) of :data:`PLOTTED` against ``axis``, one line per method."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     ok = df[df["status"] == "ok"]
     values = list(dict.fromkeys(df[axis]))
@@ -217,10 +214,7 @@ def _lamps_by_wide(table: pd.DataFrame) -> pd.DataFrame:
 
 def plot_lamps(table: pd.DataFrame, path: Path) -> None:
     """PNG: missed and extra lamps per method (bars), beside the true lamps they are out of."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import matplotlib.ticker
 
     x = np.arange(len(table))
