@@ -1,7 +1,7 @@
 """The ``nearlight`` command: one verb per pipeline task.
 
-Each stage package owns its verbs in a ``cli`` module exposing
-``register(subparsers)``, which adds sub-parsers whose ``run`` default is the
+Each stage package (in ``evaluation/``, each folder of it) owns its verbs in a
+``cli`` module exposing ``register(subparsers)``, which adds sub-parsers whose ``run`` default is the
 function to call with the parsed arguments. Registration imports nothing heavy:
 Mitsuba is imported only when a verb that renders runs.
 
@@ -27,16 +27,19 @@ import threading
 from collections.abc import Iterator, Sequence
 
 from . import __version__
-from .errors import MissingExtra, UserError
+from .errors import MissingExtra, UserError, disk_full, no_space
 from .estimator import cli as estimator_cli
-from .evaluation import cli as evaluation_cli
-from .evaluation import reproduce_cli
+from .evaluation.engine import cli as engine_cli
+from .evaluation.gsa import cli as gsa_cli
+from .evaluation.paper import cli as paper_cli
+from .evaluation.suites import cli as suites_cli
+from .evaluation.views import cli as views_cli
 from .generator import cli as generator_cli
 from .rig import cli as rig_cli
 
 #: Modules whose ``register(subparsers)`` adds verbs, in help order. Importing
 #: them imports nothing heavy: Mitsuba is imported only when a verb that renders runs.
-VERB_MODULES = (reproduce_cli, generator_cli, rig_cli, estimator_cli, evaluation_cli)
+VERB_MODULES = (paper_cli, generator_cli, rig_cli, estimator_cli, engine_cli, views_cli, gsa_cli, suites_cli)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -89,8 +92,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"nearlight: error: {exc}", file=sys.stderr)
         return UserError.exit_code
     except OSError as exc:  # a full disk where no writer named the file: still one line, not a traceback
-        from .errors import disk_full, no_space
-
         if not disk_full(exc):
             raise
         print(f"nearlight: error: {no_space(exc.filename or 'the output file system')}", file=sys.stderr)

@@ -23,7 +23,16 @@ class UserError(Exception):
     exit_code = 2
 
     def __init__(self, message: str):
-        super().__init__(" ".join(str(message).split()))
+        super().__init__(one_line(message))
+
+
+def one_line(text: object) -> str:
+    """``str(text)`` on one line: every run of white space (newlines and tabs too) one space, none at the ends.
+
+    The one way a message from elsewhere (an exception, a parser) is put into a
+    :class:`UserError` line or a result row's ``error`` column.
+    """
+    return " ".join(str(text).split())
 
 
 #: The optional parts of nearlight (``pip install 'nearlight[EXTRA]'``): what each gives, and the

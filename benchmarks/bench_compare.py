@@ -49,8 +49,8 @@ FRACTIONS = (0.0005, 0.001, 0.0025, 0.005, 0.01, 0.02)
 def _run(payload: dict, renderer: Any, cache_dir: str, fractions: tuple[float, ...]) -> tuple[dict, dict]:
     """One task's row, and for ``full`` the rows of its estimate moved along the ray by each fraction."""
     from nearlight.evaluation.planted import moved_along_ray
-    from nearlight.evaluation.metrics import score
-    from nearlight.evaluation.tasks import noisy_capture, run_method
+    from nearlight.evaluation.scoring.metrics import score
+    from nearlight.evaluation.engine.tasks import noisy_capture, run_method
 
     clean = renderer.render(payload["scene"], cache_dir=Path(cache_dir))
     capture = noisy_capture(clean, payload)
@@ -80,11 +80,11 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
 
-    from nearlight.evaluation.compare import compare_frames
-    from nearlight.evaluation.engine import task_payload, task_row
-    from nearlight.evaluation.environment import code_version
-    from nearlight.evaluation.store import read_results
-    from nearlight.evaluation.sweep import load_sweep
+    from nearlight.evaluation.views.compare import compare_frames
+    from nearlight.evaluation.engine.run import task_payload, task_row
+    from nearlight.evaluation.engine.environment import code_version
+    from nearlight.evaluation.engine.store import read_results
+    from nearlight.evaluation.engine.sweep import load_sweep
 
     doc = yaml.safe_load(SMOKE.read_text())
     pool = list(range(len(BASE_SEEDS), len(BASE_SEEDS) + args.pool))

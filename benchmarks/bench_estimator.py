@@ -9,59 +9,13 @@ paper's first stage with the plain per-step scan of the same E_p(t)
 the machine is shared. Also prints each method's lamp error (fraction of the
 highlight–lamp distance), and ``full``'s per-stage seconds with a named lobe
 and with automatic lobe choice, and with a named lobe on the capture with camera
-noise and no sensor block (a real capture's cost), against issue 14's goal (a named lobe ≤ 0.3 s per
-640×480 capture on one core, automatic choice ≤ 2× that) and as a ratio to
-``full``'s seconds before that work (:data:`BEFORE`; at other resolutions the
+noise and no sensor block (a real capture's cost), against the speed goal (:data:`GOAL`: a named lobe
+≤ 0.3 s per 640×480 capture on one core, automatic choice ≤ 2× that) and as a ratio to
+``full``'s seconds before the speed work (:data:`BEFORE`; at other resolutions the
 ratio compares unlike captures). Run it on one core: ``OMP_NUM_THREADS=1``.
 
-Measured after the reduction-free geometry and channel sums (bit for bit
-the same estimates; back to back with the code before, on the 2 shared
-cores under a load of 2–3): ``full`` with a named lobe, board 0.753 →
-0.484 s (observe 0.287 → 0.173, full stage 0.398 → 0.256), sphere 0.628 →
-0.547 s. Then (issue 14, next stop) ``observe`` without whole-image
-filters and copies (bit for bit: observe 0.172 → 0.131 s, the
-several-highlights warning 0.027 → 0.016 s) and the short fits by variable
-projection (estimates within 1e-9 m; every start now reaches the optimum,
-in about half the evaluations): CPU seconds per estimate, ten estimates
-per process paired against the code before (A B A B, three pairs, while
-two report workers ran), board and sphere 0.70 → 0.52 s, whole-process
-CPU ratio 0.76 (0.73–0.81). On an idle core that puts a named lobe near
-0.36 s: the goal (0.3 s) still not met; what is left is ``observe``
-(~0.13 s, most of it the separation's float64 Stokes fit), the seven
-short fits (~0.10 s) and the final robust fit (~0.08 s). Next stop, the
-multi-start stopped once two starts reach the same minimum
-(``several.best_short_fit``; estimates within 4.4e-8 m over 120
-sensitivity captures, 2 short fits of 7 on 119 of them): on one idle
-core, best of 2, the run before and after it back to back, a named
-lobe 0.472 → 0.339 s on the board (full stage 0.248 → 0.151) and 0.464 →
-0.352 s on the sphere; automatic choice 0.545 → 0.465 and 0.540 → 0.387 s.
-The goal (0.3 s) is still not met: ``observe`` is 0.14 s of it.
-Next stop: the final fit one robust pass (its loss scale from the
-residuals at its start, a fit on a subset; tolerance 1e-8), ``check_rays``
-on a lattice of ~2·10⁴ pixels, the Stokes fit block by block, and the
-dark pixels judged only where the fit looks (the last two bit for bit).
-The noisy row was added then: on a noise-free capture the fit skips the
-camera model's work. CPU seconds per estimate, best of 5 in a process,
-three processes of the code before (48686e1) and after alternating, one
-core: named lobe, noise-free board 0.335–0.388 → 0.286–0.309 s (best over
-best 0.85), sphere 0.303–0.368 → 0.271–0.299 s (0.89); with camera noise
-and no sensor block, board 0.499–0.547 → 0.324–0.354 s (0.65), sphere
-0.426–0.503 → 0.275–0.348 s (0.65); estimates within 4e-7 m. The
-machine's speed drifts by ~20 % between runs (an earlier run of the
-same pairs, before the last 1e-8 tolerance: board 0.296–0.362 →
-0.231–0.293 s): compare within a run. This script, best of 3, three
-runs (one with the other core busy, two idle): named lobe, board 0.256,
-0.264, 0.297 s, sphere 0.276, 0.284, 0.301 s: at the goal on the
-noise-free captures it was set on, one run of six 1 ms over; the noisy
-board 0.283–0.39 s and sphere 0.29–0.33 s, over it; the final fit's 4–5
-iterations on a noisy capture (~20 ms each at 20 000 pixels, a third of
-it the solver's SVD of the 60 000 × 7 Jacobian) are its largest part.
-On the next stop's machine (another, faster CPU; idle), this script at
-e1e66cc and at 2daafe0 (dark pixels measured by a censored likelihood: the
-benchmark's captures have none) back to back, best of 3: named lobe, board
-0.174 → 0.175 s, sphere 0.174 → 0.168 s; automatic lobe 0.212 → 0.211 s
-and 0.205 → 0.200 s; camera noise and no sensor block, board 0.213 →
-0.212 s, sphere 0.206 → 0.205 s: every row within its goal there.
+What it printed as ``full`` got faster, run by run, with the commits
+compared: docs/measurements/estimator-speed.md.
 
 Usage::
 
@@ -89,11 +43,11 @@ SCENES = {
 }
 
 #: ``full``'s seconds per 640×480 capture, measured at e8b09ea on the development machine (one run,
-#: one core, shared), before issue 14's speed work: scene -> lobe -> seconds.
+#: one core, shared), before the speed work of docs/measurements/estimator-speed.md: scene -> lobe -> seconds.
 BEFORE = {"board": {"torrance_sparrow": 2.619, "auto": 3.012}, "sphere": {"torrance_sparrow": 1.322}}
 #: The sensitivity study's low camera noise (``sweeps/sensitivity.yaml``), for the noisy row.
 NOISE = {"full_well": 50000, "read_noise": 3.0, "bits": 14, "saturation": "auto"}
-#: Issue 14's goal for a named lobe, seconds per 640×480 capture on one core; ``auto``: twice that.
+#: The speed goal for a named lobe, seconds per 640×480 capture on one core; ``auto``: twice that.
 GOAL = 0.3
 
 
@@ -123,7 +77,7 @@ def main() -> None:
             origin = cap.P[tuple(est.diagnostics["peak_pixel"])].astype(float)
             err = np.linalg.norm(est.lamp_position - lamp) / np.linalg.norm(lamp - origin)
             print(f"{name:8} {method:11} {secs:8.3f} {err:9.2e} {est.sigma:7.4f}")
-        # full's stages, and a named lobe against automatic choice (issue 14's speed goal: a named
+        # full's stages, and a named lobe against automatic choice (the speed goal: a named
         # lobe ≤ 0.3 s per 640×480 capture on one core, automatic choice ≤ 2× that)
         named = None
         for lobe in ("torrance_sparrow", "auto"):

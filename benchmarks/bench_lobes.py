@@ -14,7 +14,7 @@ the sensitivity study's camera noise (``low``: 50 000 e full well, 3 e read,
    each family, with automatic choice, and with automatic choice among the
    others (the true family left out); the last columns give automatic
    choice's median over the best fixed family's with its 95 % bootstrap
-   interval (the seeds resampled jointly) and the verdict on the issue's
+   interval (the seeds resampled jointly) and the verdict on the
    goal, within 1.2×: ``yes`` when the whole interval is, ``NO`` when none
    of it is, ``undecided`` when it straddles 1.2 (more seeds decide). A
    ratio of medians over 20 seeds is too noisy for a verdict: the sphere's
@@ -25,7 +25,7 @@ the sensitivity study's camera noise (``low``: 50 000 e full well, 3 e read,
 2. **Confusion**: which family automatic choice names, per rendered family,
    at each noise level (low SNR → the families nearly coincide at small σ).
 3. **Efficiency**: lamp RMSE and σ RMSE over the seeds against the
-   Cramér–Rao bound (:func:`nearlight.evaluation.crlb.specular_crlb`, the
+   Cramér–Rao bound (:func:`nearlight.evaluation.scoring.crlb.specular_crlb`, the
    fit's own family), with a bootstrap 95 % upper bound of the ratio (goal:
    ≤ 1.2), and the coverage of the fit's 95 % lamp ellipsoid with its
    Clopper–Pearson interval (goal: it contains 95 %). Fits name the true
@@ -60,7 +60,7 @@ the sensitivity study's camera noise (``low``: 50 000 e full well, 3 e read,
    against 0.53 % chosen): the wrong family's lamp is pulled in on every
    seed, not on the one in ten that chooses it.
 
-Printed, not asserted. The issue asks for ≥ 200 seeds in table 3
+Printed, not asserted. Table 3 wants ≥ 200 seeds
 (``--seeds 200``: 474 s on one core beside a busy one); the default is
 smaller; ``--rows`` picks rows (``--rows 'sphere/high/*'``). Measured at
 b06c2c8 (``--tables efficiency --seeds 200``), lamp RMSE / CRLB (bootstrap
@@ -93,8 +93,8 @@ from scipy.stats import binomtest, chi2
 from nearlight.estimator import estimate
 from nearlight.estimator.lobes import FAMILIES
 from nearlight.estimator.noise import camera_noise, censored_pixels
-from nearlight.evaluation.crlb import camera_noise_variance, specular_crlb
-from nearlight.evaluation.metrics import truth_sigma
+from nearlight.evaluation.scoring.crlb import camera_noise_variance, specular_crlb
+from nearlight.evaluation.scoring.metrics import truth_sigma
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.noise import add_camera_noise
 from nearlight.physics.reflectance import convert_bsdf
@@ -143,9 +143,9 @@ def pplastic_board(w: int, h: int):
     return render_clean(scene, progress=False)
 
 
-#: The issue's goal for the efficiency table: the 95 % bootstrap upper bound of RMSE / CRLB, lamp and σ.
+#: The goal of the efficiency table: the 95 % bootstrap upper bound of RMSE / CRLB, lamp and σ.
 EFFICIENCY_GOAL = 1.2
-#: The issue's goal for the mismatch table: automatic choice's median lamp error within this factor of
+#: The goal of the mismatch table: automatic choice's median lamp error within this factor of
 #: the best fixed family's.
 MISMATCH_GOAL = 1.2
 
@@ -274,7 +274,7 @@ def efficiency(args) -> None:
                 rs = np.sqrt(np.mean(ds**2)) / bound["crlb_sigma_rel"]
                 upper_l = _bootstrap_upper(dl, bound["crlb_lamp_m"], rng)
                 upper_s = _bootstrap_upper(ds, bound["crlb_sigma_rel"], rng)
-                # the issue's goal: both upper bounds ≤ 1.2, and the coverage interval holds 95 %
+                # the goal: both upper bounds ≤ 1.2, and the coverage interval holds 95 %
                 met = max(upper_l, upper_s) <= EFFICIENCY_GOAL and ci is not None and ci.low <= 0.95 <= ci.high
                 print(f"{obj:7} {level:5} {family:17} {rl:10.2f} {upper_l:8.2f} {rs:8.2f} {upper_s:8.2f} "
                       f"{inside / max(n, 1):14.3f} {f'[{ci.low:.3f}, {ci.high:.3f}]' if ci else '-':>14} {failed:6d} "

@@ -1,6 +1,6 @@
 """Lamp position error of the paper's method and its variants on analytic boards and spheres.
 
-The printed paper (``paper-init``, ``paper``) beside the variants of issue 11
+The printed paper (``paper-init``, ``paper``) beside the variants
 that correct its two weak points, each named as what it is: the ray's origin
 (``origin=subpixel``; ``origin=model``, a departure from the paper) and the
 AM's t search (``am=bounded``, a departure), and the ORACLE origin
@@ -11,7 +11,7 @@ board) with the lamp at several distances from the board centre along the
 scene's lamp direction and several roughnesses, noise-free and with the
 sensitivity study's camera noise (full well 20000 e⁻, read noise 5 e⁻, 12
 bits, auto exposure; 8 analyzer angles), plus spheres. Error: % of the true
-lamp's distance from the highlight point (``evaluation.metrics``); a method
+lamp's distance from the highlight point (``nearlight.evaluation.scoring.metrics``); a method
 that refuses a task counts as a failure (an infinite error in the median and
 p90). Printed, not asserted.
 
@@ -31,7 +31,7 @@ import numpy as np
 
 from nearlight.errors import UserError
 from nearlight.estimator import estimate
-from nearlight.evaluation.metrics import highlight_point, lamp_position_error_pct
+from nearlight.evaluation.scoring.metrics import highlight_point, lamp_position_error_pct
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.noise import add_camera_noise
 

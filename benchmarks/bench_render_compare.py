@@ -14,7 +14,7 @@ three materials:
 Each capture is separated from its 8-angle analyzer stack by the methods
 themselves (``projected``). Errors: lamp position as % of the true lamp's
 distance from the highlight point, and ``|σ − σ_true| / σ_true`` with σ_true
-0.10 on all three (:mod:`nearlight.evaluation.metrics`). Run time: wall
+0.10 on all three (:mod:`nearlight.evaluation.scoring.metrics`). Run time: wall
 clock of ``estimate()``, Mitsuba already initialised by the render (Dr.Jit
 compiles each new kernel once per process: included). Printed, not asserted.
 
@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from nearlight.estimator import estimate
-from nearlight.evaluation.metrics import highlight_point, lamp_position_error_pct, sigma_relative_error
+from nearlight.evaluation.scoring.metrics import highlight_point, lamp_position_error_pct, sigma_relative_error
 from nearlight.generator import load_scene, render_clean
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "ts_board.yaml"

@@ -5,7 +5,7 @@ the host). This script stands in for that machine: it runs ``nearlight
 reproduce`` twice in one process, the second time with every float of every
 clean render (analyzer stack, P, N, truth images) moved by one float32 ulp in
 a seeded random direction, and checks the second run against the first with
-:func:`nearlight.evaluation.reproduce_check.check`, the check ``reproduce
+:func:`nearlight.evaluation.paper.check.check`, the check ``reproduce
 --against`` runs. It prints the check's table-by-table lines and, per metric,
 the largest difference as a fraction of the allowed one (below 1 everywhere is
 the goal). Printed, not asserted.
@@ -49,8 +49,8 @@ def main() -> None:
     args = parser.parse_args()
 
     import nearlight.generator as generator
-    from nearlight.evaluation.reproduce import reproduce
-    from nearlight.evaluation.reproduce_check import RELATIVE, TOLERANCES, check, rows
+    from nearlight.evaluation.paper.reproduce import reproduce
+    from nearlight.evaluation.paper.check import RELATIVE, TOLERANCES, check, rows
 
     docs = []
     original = generator.render_clean

@@ -31,7 +31,7 @@ import numpy as np
 from nearlight.errors import UserError
 from nearlight.estimator import estimate, sanity
 from nearlight.generator.analytic import analytic_capture
-from nearlight.generator.nuisances import observe as rig_observe
+from nearlight.generator.nuisances import through_rig
 from nearlight.physics.reflectance import ward_from_torrance_sparrow
 
 NOISE = {"none": None, "low": {"full_well": 50000, "read_noise": 3.0, "bits": 14},
@@ -54,7 +54,7 @@ def captures(seeds: int):
             bsdf = {"model": "ward", "rho_s": rho.tolist(), "alpha": alpha}
         kw = {"sphere_centre": tuple(centre), "sphere_radius": 0.1} if shape == "sphere" else {}
         clean = analytic_capture(shape=shape, lamp_position=tuple(lamp), bsdf=bsdf, **kw)
-        cap = clean if NOISE[noise] is None else rig_observe(clean, noise=NOISE[noise], seed=seed)
+        cap = clean if NOISE[noise] is None else through_rig(clean, noise=NOISE[noise], seed=seed)
         yield f"{shape} d={d} σ={rough} {model} {noise} seed {seed}", cap, lamp
 
 

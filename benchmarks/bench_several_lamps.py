@@ -6,10 +6,10 @@ default, 4 analyzer angles) with the sensitivity study's camera noise
 bits; ``saturation: auto``; ``none``: the noise-free capture, one seed):
 
 - ``two``: scenes/two_lamps.yaml in closed form, two equal lamps 30° apart as
-  seen from the board's centre (the issue's acceptance: right count on ≥ 95 %
+  seen from the board's centre (the acceptance bar: right count on ≥ 95 %
   of noisy captures, each lamp within 1 % of its distance);
 - ``two-dim``: the same with the second lamp at a quarter of the intensity;
-- ``board``, ``sphere``, ``board-near``: one lamp (the issue: no extra lamp on
+- ``board``, ``sphere``, ``board-near``: one lamp (the bar: no extra lamp on
   ≥ 99 % of configurations).
 
 Per configuration and noise level: how often each count was chosen, the
@@ -53,7 +53,7 @@ from collections import Counter
 import numpy as np
 
 from nearlight.estimator import estimate
-from nearlight.evaluation.metrics import lamp_scores
+from nearlight.evaluation.scoring.metrics import lamp_scores
 from nearlight.generator.analytic import analytic_capture_lamps
 from nearlight.generator.noise import add_camera_noise
 
@@ -78,7 +78,7 @@ CONFIGS = {
 
 def lamp_errors_pct(capture, est) -> list[float]:
     """Per true lamp, the error (% of its distance from its highlight point) of the estimated lamp matched
-    to it (:func:`nearlight.evaluation.metrics.lamp_scores`; NaN when missed)."""
+    to it (:func:`nearlight.evaluation.scoring.metrics.lamp_scores`; NaN when missed)."""
     s, n = lamp_scores(capture, est), len(capture.truth["lamps"])
     return [s["lamp_position_error_pct"]] if n == 1 else [s[f"lamp{i}_position_error_pct"] for i in range(n)]
 

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import yaml
 
-from nearlight.evaluation.engine import run_sweep
-from nearlight.evaluation.sweep import load_sweep
+from nearlight.evaluation.engine.run import run_sweep
+from nearlight.evaluation.engine.sweep import load_sweep
 
 
 def main() -> None:

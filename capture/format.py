@@ -19,10 +19,9 @@ import contextlib
 import dataclasses
 import errno
 import json
-import math
 import os
 import re
-import shutil
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -30,8 +29,11 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import UserError, disk_full
-from ..files.jsonable import jsonable
+from ..errors import UserError, disk_full, one_line
+from ..files.atomic import check_not_full, write_folder
+from ..files.jsonable import json_text, jsonable
+from ..files.outputs import check_capture_out, is_capture_dir
+from ..files.schema import all_numbers, is_number
 from ..physics.reflectance import every_channel
 
 #: The version the writer writes.
@@ -313,7 +315,7 @@ def read_capture(path: str | os.PathLike) -> Capture:
     to_world = cam.get("to_world")
     to_world = None if to_world is None else _vector(to_world, json_path, "camera.to_world", (4, 4))
     fov = cam.get("fov_x_deg")
-    if fov is not None and not (_is_number(fov) and 0 < fov < 180):
+    if fov is not None and not (is_number(fov) and 0 < fov < 180):
         raise UserError(f"{json_path}: camera.fov_x_deg: expected a number in (0, 180), got {fov!r}")
     intrinsics = _intrinsics(cam.get("intrinsics"), json_path) if v2 else None
     angles = take("analyzer_angles_deg")
@@ -462,8 +464,6 @@ def _quiet_fds() -> Iterator[list[str]]:
     OpenEXR reports damaged files on stderr/stdout itself, beside its exception;
     nearlight's one error line must be all the user sees.
     """
-    import sys
-
     lines: list[str] = []
     for stream in (sys.stdout, sys.stderr):
         try:
@@ -493,7 +493,7 @@ def _ratio(x: Any, where: Path, key: str) -> float | None:
     """An extinction ratio: a number >= 1, or None (ideal)."""
     if x is None:
         return None
-    if not (_is_number(x) and x >= 1):
+    if not (is_number(x) and x >= 1):
         raise UserError(f"{where}: {key}: expected a number >= 1 or null, got {x!r}")
     return float(x)
 
@@ -530,7 +530,7 @@ def _lamp_filter(x: Any, where: Path) -> LampFilter | None:
     out = {}
     for key in ("axis", "aim"):
         v = x[key]
-        if not (isinstance(v, list) and len(v) == 3 and all(_is_number(c) for c in v)):
+        if not (isinstance(v, list) and len(v) == 3 and all(is_number(c) for c in v)):
             raise UserError(f"{where}: rig.lamp_filter.{key}: expected 3 numbers (world), got {v!r}")
         out[key] = tuple(float(c) for c in v)
     if not np.linalg.norm(out["axis"]) > 0:
@@ -547,7 +547,7 @@ def _intrinsics(x: Any, where: Path) -> Intrinsics | None:
     values = {}
     for key in ("fx", "fy", "cx", "cy"):
         v = x.get(key)
-        if not _is_number(v) or (key in ("fx", "fy") and v <= 0):
+        if not is_number(v) or (key in ("fx", "fy") and v <= 0):
             want = "a number > 0" if key in ("fx", "fy") else "a number"
             raise UserError(f"{where}: camera.intrinsics.{key}: expected {want}, got {v!r}")
         values[key] = float(v)
@@ -564,9 +564,9 @@ def _sensor(x: Any, where: Path) -> Sensor | None:
     if unknown:
         raise UserError(f"{where}: sensor.{unknown[0]}: unknown key (expected {', '.join(SENSOR_KEYS)})")
     for key in ("saturation", "full_well"):
-        if not (_is_number(x.get(key)) and x[key] > 0):
+        if not (is_number(x.get(key)) and x[key] > 0):
             raise UserError(f"{where}: sensor.{key}: expected a number > 0, got {x.get(key)!r}")
-    if not (_is_number(x.get("read_noise")) and x["read_noise"] >= 0):
+    if not (is_number(x.get("read_noise")) and x["read_noise"] >= 0):
         raise UserError(f"{where}: sensor.read_noise: expected a number >= 0, got {x.get('read_noise')!r}")
     bits = x.get("bits")
     if not (isinstance(bits, int) and not isinstance(bits, bool) and 1 <= bits <= 32):
@@ -601,14 +601,14 @@ def _check_truth_v2(truth: Any, where: Path, rig: Rig | None = None) -> None:
             if lamp.get("intensity") is not None and min(lamp["intensity"]) < 0:
                 raise UserError(f"{where}: {key}.intensity: expected 3 numbers >= 0, got {lamp['intensity']!r}")
             radius = lamp.get("radius_m", 0.0)
-            if not (_is_number(radius) and radius >= 0):
+            if not (is_number(radius) and radius >= 0):
                 raise UserError(f"{where}: {key}.radius_m: expected a number >= 0, got {radius!r}")
             _ratio(lamp.get("polarizer_extinction_ratio"), where, f"{key}.polarizer_extinction_ratio")
             aniso = lamp.get("anisotropy")
             if aniso is not None:
                 if not isinstance(aniso, dict):
                     raise UserError(f"{where}: {key}.anisotropy: expected null or an object {{k, axis}}, got {aniso!r}")
-                if not (_is_number(aniso.get("k")) and aniso["k"] >= 0):
+                if not (is_number(aniso.get("k")) and aniso["k"] >= 0):
                     raise UserError(f"{where}: {key}.anisotropy.k: expected a number >= 0, got {aniso.get('k')!r}")
                 axis = _vector(aniso.get("axis"), where, f"{key}.anisotropy.axis", (3,))
                 if not np.linalg.norm(axis) > 0:
@@ -633,15 +633,11 @@ def _check_truth_v2(truth: Any, where: Path, rig: Rig | None = None) -> None:
         if cam.get("to_world") is not None:
             _vector(cam["to_world"], where, "truth.camera.to_world", (4, 4))
         fov = cam.get("fov_x_deg")
-        if fov is not None and not (_is_number(fov) and 0 < fov < 180):
+        if fov is not None and not (is_number(fov) and 0 < fov < 180):
             raise UserError(f"{where}: truth.camera.fov_x_deg: expected a number in (0, 180), got {fov!r}")
     nuisances = truth.get("nuisances")
     if nuisances is not None and not isinstance(nuisances, dict):
         raise UserError(f"{where}: truth.nuisances: expected an object, got {nuisances!r}")
-
-
-def _is_number(x: Any) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
 def _positive_int(x: Any, where: Path, key: str) -> int:
@@ -650,16 +646,9 @@ def _positive_int(x: Any, where: Path, key: str) -> int:
     return x
 
 
-def _all_numbers(x: Any) -> bool:
-    """Nested lists of JSON numbers only (numpy would also turn ``"135"`` or ``true`` into a float)."""
-    if isinstance(x, list):
-        return all(_all_numbers(v) for v in x)
-    return isinstance(x, (int, float)) and not isinstance(x, bool)
-
-
 def _vector(x: Any, where: Path, key: str, shape: tuple[int, ...] | None) -> np.ndarray:
     try:
-        arr = np.asarray(x, dtype=float) if _all_numbers(x) else None
+        arr = np.asarray(x, dtype=float) if all_numbers(x) else None
     except (TypeError, ValueError):
         arr = None
     if arr is None or arr.dtype == object or not np.all(np.isfinite(arr)) or (shape is not None and arr.shape != shape):
@@ -703,18 +692,10 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
     """
     import OpenEXR
 
-    from ..files.atomic import cannot_write, check_not_full
-    from ..files.outputs import check_capture_out, is_capture_dir
-
     path = check_capture_out(path, overwrite=overwrite)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
-    except OSError as exc:
-        raise cannot_write(path, exc) from None
-    old = None
-    try:
-        (tmp / JSON_NAME).write_text(json.dumps(capture_json(capture), indent=2) + "\n")
+
+    def fill(tmp: Path) -> None:
+        (tmp / JSON_NAME).write_text(json_text(capture_json(capture)))
         if OpenEXR.global_thread_count() == 0:
             # OpenEXR compresses on the calling thread by default; its pool of one
             # thread per core writes a 640x480 capture in 0.26 s instead of 0.39 s.
@@ -723,30 +704,11 @@ def write_capture(capture: Capture, path: str | os.PathLike, *, overwrite: bool 
         try:
             OpenEXR.File(header, _channels(capture)).write(str(tmp / EXR_NAME))
         except RuntimeError as exc:  # OpenEXR's I/O errors (a full disk: "No space left on device")
-            raise OSError(errno.ENOSPC if disk_full(exc) else errno.EIO, " ".join(str(exc).split())) from None
+            raise OSError(errno.ENOSPC if disk_full(exc) else errno.EIO, one_line(exc)) from None
         check_not_full(tmp / EXR_NAME)
-        if path.exists() or path.is_symlink():
-            # Checked again at the last moment: only a capture is ever replaced. The old
-            # capture is moved aside first, so a failure here keeps one of the two whole.
-            if not is_capture_dir(path):
-                check_capture_out(path, overwrite=overwrite)
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
-            path.rename(old / "capture")
-        tmp.rename(path)
-    except OSError as exc:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if old is not None and not path.exists() and (old / "capture").exists():
-            (old / "capture").rename(path)
-        raise cannot_write(path, exc) from None
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if old is not None and not path.exists() and (old / "capture").exists():
-            (old / "capture").rename(path)
-        raise
-    finally:
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    return path
+
+    # Checked again at the last moment: only a capture is ever replaced.
+    return write_folder(path, fill, existing=lambda p: is_capture_dir(p) or check_capture_out(p, overwrite=overwrite))
 
 
 def capture_json(capture: Capture) -> dict[str, Any]:

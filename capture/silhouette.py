@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import UserError
+
 #: The luminance range :func:`signal_mask` splits, in decades below the image's 99.9th percentile (darker: background).
 SIGNAL_DECADES = 3.0
 #: A flip must give a valid range to at least this fraction of the image's signal pixels to be called a better fit.
@@ -162,8 +164,6 @@ def capture_luminance(capture, rows: np.ndarray | None = None, cols: np.ndarray 
 def check_silhouette(capture) -> None:
     """Raise :class:`~nearlight.errors.UserError` when ``P`` is the image's geometry mirrored (:func:`mirrored`),
     judged on a lattice of about :data:`CHECK_PIXELS` pixels (a 640x480 capture: every 3rd row and column)."""
-    from ..errors import UserError
-
     rows, cols = lattice(capture.height, capture.width)
     lum = capture_luminance(capture, rows, cols)
     if lum is None:

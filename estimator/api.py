@@ -85,7 +85,7 @@ def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", san
         (default): one it breaks is returned refused (``status="failed"``, NaN
         numbers, the reason in ``diagnostics["failure"]``). False only for
         studies of a method's inner stages that read their raw numbers
-        (:mod:`nearlight.evaluation.paper_fidelity`).
+        (:mod:`nearlight.evaluation.paper.fidelity`).
     **options
         Method options (see each method's docstring), e.g. ``t_max=2.0``;
         checked against the method's declaration before it runs

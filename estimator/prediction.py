@@ -3,7 +3,7 @@
 For plots (``nearlight estimate --plot``), the sanity rules
 (:mod:`~nearlight.estimator.sanity`) and users' checks. The benchmark does not
 grade with it: the evaluation's grading re-synthesis
-(:mod:`nearlight.evaluation.resynthesis`) is a second implementation, so that
+(:mod:`nearlight.evaluation.scoring.independent_resynthesis`) is a second implementation, so that
 a grade shares no code with the model it grades.
 """
 

@@ -49,7 +49,7 @@ class Estimate:
         leaves) means the one lamp ``lamp_position``: read it through
         :meth:`found_lamps`, never this field directly. The evaluation
         matches these lamps to the capture's true ones
-        (:mod:`nearlight.evaluation.matching`); ``to_dict`` writes the key only
+        (:mod:`nearlight.evaluation.scoring.matching`); ``to_dict`` writes the key only
         when it is set, so one-lamp estimates serialise as before. An
         optional last field, so that every existing ``Estimate(...)`` call and
         ``dataclasses.replace(est, lamp_position=...)`` on a one-lamp estimate

@@ -471,7 +471,7 @@ def several_estimate(capture: Capture, one: Estimate, obs: Observation, *, lamps
     return Estimate(
         method="full",
         lamp_position=stage["lamp_position"],
-        lamp_positions=np.array([x[6 * i : 6 * i + 3] for i in order]),  # scored by evaluation.matching
+        lamp_positions=np.array([x[6 * i : 6 * i + 3] for i in order]),  # scored by evaluation.scoring.matching
         ks=colour * peak_shape(family, x[-1]),
         sigma=per_roughness * x[-1],
         covariance=cov4,

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..capture import Capture
 from ..estimator import Estimate, estimate
-from .metrics import highlight_point
+from .scoring.metrics import highlight_point
 
 
 def further_along_ray(capture: Capture, *, method: str = "full", fraction: float = 0.02, **options: Any) -> Estimate:

@@ -16,7 +16,19 @@ import numpy as np
 
 from ..errors import UserError
 from .atomic import atomic_write
+from .outputs import check_file_out
 
+
+
+def pyplot() -> Any:
+    """``matplotlib.pyplot`` on the Agg backend (PNG files, never a window), imported when a figure is first
+    drawn: matplotlib is not needed to run a sweep, only to draw one."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
 
 def tonemap(img: np.ndarray, *, white: float | None = None, gamma: float = 2.2) -> np.ndarray:
     """Linear radiance to display values in [0, 1].
@@ -80,13 +92,8 @@ def panel_grid(
         ``path`` cannot be written, or holds a file that is not a PNG image
         (see :func:`nearlight.files.outputs.check_file_out`).
     """
-    from .outputs import check_file_out
-
     path = check_file_out(path, "png")
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     n = len(panels)
     ncols = ncols or min(n, 4)

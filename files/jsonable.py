@@ -1,7 +1,8 @@
-"""Plain-JSON views of nested results (numpy arrays and scalars, paths, NaN)."""
+"""Plain-JSON views of nested results (numpy arrays and scalars, paths, NaN), and the JSON text nearlight writes."""
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping
 from pathlib import PurePath
@@ -30,3 +31,8 @@ def jsonable(x: Any) -> Any:
     if isinstance(x, PurePath):
         return str(x)
     return x
+
+
+def json_text(doc: Any) -> str:
+    """``doc`` as the JSON text of every file nearlight writes: indented by 2, ASCII, a final newline."""
+    return json.dumps(doc, indent=2) + "\n"

@@ -1,4 +1,4 @@
-"""Validated documents: a pydantic model's first error as one line, and the names and paths a document may hold.
+"""Validated documents: a pydantic model's first error as one line, the numbers, names and paths a document may hold.
 
 The one home of the rule every validated file follows (scene, sweep, GSA files; suite manifests;
 reproduction references): the first error of a :class:`pydantic.ValidationError` becomes one
@@ -8,10 +8,14 @@ Names and paths read from a document (a suite manifest's case ids, case folders 
 are the document's to choose only inside its own folder: :func:`check_name` and
 :func:`check_relative` are the validators its model uses, and :func:`inside` checks the place on
 disk (a symbolic link out of the folder is refused as a ``..`` is).
+
+Numbers read from JSON or YAML by hand (capture files, rig files, sweep axes) are checked with
+:func:`is_number` and :func:`all_numbers`: ``true`` is not 1, and numpy would turn ``"135"`` into a float.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from pathlib import Path, PurePosixPath
@@ -24,6 +28,18 @@ M = TypeVar("M")
 #: A name that is one path component on every file system: letters, digits, ``.``, ``_``, ``-``; not
 #: starting with a dot (no ``.``, ``..``, no hidden name).
 NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,127}")
+
+
+def is_number(x: Any) -> bool:
+    """Whether ``x`` is a finite int or float, not a bool."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def all_numbers(x: Any) -> bool:
+    """Whether ``x`` is an int or float that is not a bool (NaN and infinities included), or nested lists of them."""
+    if isinstance(x, list):
+        return all(all_numbers(v) for v in x)
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
 
 
 def first_error(exc: Any) -> str:

@@ -16,7 +16,7 @@ from typing import Any
 
 import yaml
 
-from ..errors import UserError
+from ..errors import UserError, one_line
 
 #: Larger files are not scene or sweep files (and would only waste memory).
 MAX_BYTES = 16 << 20
@@ -105,7 +105,7 @@ def load_yaml_file(path: str | os.PathLike, *, what: str) -> Any:
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1})" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc)
-        raise UserError(f"{path}: not valid YAML{where}: {' '.join(str(problem).split())}") from None
+        raise UserError(f"{path}: not valid YAML{where}: {one_line(problem)}") from None
     except RecursionError:
         raise UserError(f"{path}: not a {what}: nested too deeply") from None
 

@@ -6,6 +6,9 @@ import argparse
 import os
 from pathlib import Path
 
+from ..errors import require_extra
+from ..files.outputs import check_file_out, check_folder
+
 
 def default_cache_dir() -> Path:
     """``$NEARLIGHT_CACHE`` or ``$XDG_CACHE_HOME/nearlight/renders`` (``~/.cache/...``)."""
@@ -33,8 +36,6 @@ def cache_dir(args: argparse.Namespace, *, default: Path | None = None) -> Path 
 
     ``default`` replaces the user cache (:func:`default_cache_dir`) when ``--cache`` is not given.
     """
-    from ..files.outputs import check_folder
-
     if args.no_cache:
         return None
     folder = Path(args.cache) if args.cache else (default or default_cache_dir())
@@ -43,7 +44,7 @@ def cache_dir(args: argparse.Namespace, *, default: Path | None = None) -> Path 
 
 
 def results_cache(args: argparse.Namespace) -> Path | None | bool:
-    """The ``cache_dir`` of :func:`nearlight.evaluation.engine.run_sweep` for a verb with a results
+    """The ``cache_dir`` of :func:`nearlight.evaluation.engine.run.run_sweep` for a verb with a results
     folder: True (its ``renders/``) unless ``--cache DIR`` (checked) or ``--no-cache`` (None)."""
     return cache_dir(args) if args.cache or args.no_cache else True
 
@@ -84,9 +85,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _render(args: argparse.Namespace) -> int:
     from . import load_scene, render_capture
-
     from .pipeline import check_writable
-    from ..errors import require_extra
 
     require_extra("render")
     check_writable(Path(args.out), overwrite=args.overwrite)
@@ -98,8 +97,6 @@ def _render(args: argparse.Namespace) -> int:
 
 def _show(args: argparse.Namespace) -> int:
     from .show import contact_sheet
-
-    from ..files.outputs import check_file_out
 
     folder = Path(args.capture)
     named = folder if folder.name not in ("", "..") else folder.resolve()

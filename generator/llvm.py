@@ -26,7 +26,7 @@ import warnings
 from functools import cache
 from types import ModuleType
 
-from ..errors import require_extra
+from ..errors import UserError, require_extra
 
 LLVM_VARIANT = "llvm_ad_mono_polarized"
 SCALAR_VARIANT = "scalar_spectral_polarized"
@@ -68,8 +68,6 @@ def planned_variant() -> tuple[str, str | None]:
     """
     forced = os.environ.get("NEARLIGHT_MITSUBA_VARIANT")
     if forced not in (None, "", LLVM_VARIANT, SCALAR_VARIANT):
-        from ..errors import UserError
-
         raise UserError(f"NEARLIGHT_MITSUBA_VARIANT: expected {LLVM_VARIANT} or {SCALAR_VARIANT}, got {forced!r}")
     if forced == SCALAR_VARIANT:
         return SCALAR_VARIANT, None

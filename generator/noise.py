@@ -89,7 +89,7 @@ from scipy.special import ndtr
 
 from ..capture import Capture, Sensor
 from ..physics.camera import auto_saturation
-from .scene import CameraNoise
+from .scene import NoiseSpec
 
 #: Expected electrons below which shot noise is the exact Poisson quantile (see the module docstring).
 EXACT_POISSON_BELOW = 20.0
@@ -199,7 +199,7 @@ def _poisson_quantile(u: np.ndarray, lam: np.ndarray) -> np.ndarray:
     return out
 
 
-def add_camera_noise(capture: Capture, *, noise: CameraNoise | Mapping[str, Any] | None, seed: int) -> Capture:
+def add_camera_noise(capture: Capture, *, noise: NoiseSpec | Mapping[str, Any] | None, seed: int) -> Capture:
     """A copy of ``capture`` with camera noise on its recorded images.
 
     Continuous in the clean images for a given ``seed`` (see the module
@@ -210,7 +210,7 @@ def add_camera_noise(capture: Capture, *, noise: CameraNoise | Mapping[str, Any]
     ----------
     capture : Capture
         Clean capture (radiance, arbitrary units).
-    noise : CameraNoise or mapping or None
+    noise : NoiseSpec or mapping or None
         ``full_well`` (electrons), ``read_noise`` (electrons rms), ``bits``,
         ``saturation`` (radiance filling the full well, or ``"auto"``). None
         returns ``capture`` unchanged.
@@ -226,8 +226,8 @@ def add_camera_noise(capture: Capture, *, noise: CameraNoise | Mapping[str, Any]
     """
     if noise is None:
         return capture
-    if not isinstance(noise, CameraNoise):
-        noise = CameraNoise.model_validate(dict(noise))
+    if not isinstance(noise, NoiseSpec):
+        noise = NoiseSpec.model_validate(dict(noise))
     images = {k: getattr(capture, k) for k in RECORDED if getattr(capture, k) is not None}
     if noise.saturation == "auto":
         saturation = auto_saturation(*images.values())
@@ -246,7 +246,7 @@ def add_camera_noise(capture: Capture, *, noise: CameraNoise | Mapping[str, Any]
     return capture.replace(**noisy, sensor=sensor, meta=_with_noise(capture.meta, "camera", record))
 
 
-def adc_counts(img: np.ndarray, z_shot: np.ndarray, z_read: np.ndarray, *, noise: CameraNoise,
+def adc_counts(img: np.ndarray, z_shot: np.ndarray, z_read: np.ndarray, *, noise: NoiseSpec,
            saturation: float) -> np.ndarray:  # fmt: skip
     """What the camera's ADC reads for clean radiance ``img``: steps 1–5 of the module docstring.
 
@@ -256,7 +256,7 @@ def adc_counts(img: np.ndarray, z_shot: np.ndarray, z_read: np.ndarray, *, noise
         Clean radiance (NaN and negative values count as 0).
     z_shot, z_read : ndarray, same shape
         Standard normal draws for the shot and the read noise.
-    noise : CameraNoise
+    noise : NoiseSpec
     saturation : float
         Radiance that fills the full well (resolved, not ``"auto"``).
 

@@ -1,6 +1,6 @@
 """What a real rig records from a clean render: nuisances applied after rendering, per seed, around the noise.
 
-:func:`observe` is the one function that turns a clean capture (a render) into
+:func:`through_rig` is the one function that turns a clean capture (a render) into
 the capture an estimator sees; ``nearlight render`` and every sweep task call
 it. With every nuisance off it is exactly camera noise then range noise
 (:mod:`nearlight.generator.noise`), as before nuisances existed: each step
@@ -61,7 +61,7 @@ from ..physics.camera import auto_saturation, response, vignetting_gain
 from ..physics.polarization import analyzer_stack, linear_stokes
 from .noise import RECORDED, add_camera_noise, add_range_noise
 from .realism import expand
-from .scene import CameraNoise, Nuisances, Scene, euler_rotation
+from .scene import NoiseSpec, Nuisances, Scene, euler_rotation
 
 
 def nuisance_rng(seed: int) -> np.random.Generator:
@@ -86,12 +86,12 @@ def draws_from_seed(nuisances: Nuisances) -> bool:
     return nuisances.analyzer.jitter_deg > 0 or nuisances.camera.flicker > 0
 
 
-def observe(
+def through_rig(
     clean: Capture,
     *,
     nuisances: Nuisances | None = None,
     realism: str = "none",
-    noise: CameraNoise | Mapping[str, Any] | None = None,
+    noise: NoiseSpec | Mapping[str, Any] | None = None,
     range_noise: float = 0.0,
     seed: int = 0,
 ) -> Capture:
@@ -106,7 +106,7 @@ def observe(
         The scene's ``nuisances`` (None: all off).
     realism : str
         The profile they came from, recorded in ``truth.nuisances``.
-    noise : CameraNoise or mapping or None
+    noise : NoiseSpec or mapping or None
         ``capture.noise``.
     range_noise : float
         ``capture.range_noise_m``, metres.

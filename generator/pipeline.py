@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..capture import write_capture
 from ..files.outputs import check_capture_out, check_folder
-from .nuisances import observe
+from .nuisances import through_rig
 from .render import check_memory, render_clean
 from .scene import Scene
 
@@ -16,7 +16,7 @@ def render_capture(scene: Scene, out_dir: str | os.PathLike, *, cache_dir: str |
                    progress: bool = True, overwrite: bool = False) -> Path:  # fmt: skip
     """Render ``scene`` and write its capture to ``out_dir``.
 
-    What the rig records is :func:`nearlight.generator.nuisances.observe` of the
+    What the rig records is :func:`nearlight.generator.nuisances.through_rig` of the
     render: the scene's ``nuisances``, camera noise (``capture.noise``) and
     range noise (``capture.range_noise_m``), all given ``capture.seed`` (the
     seed rule of :mod:`nearlight.generator.noise`). The output folder is
@@ -52,7 +52,7 @@ def render_capture(scene: Scene, out_dir: str | os.PathLike, *, cache_dir: str |
         check_folder(cache_dir, what="render cache folder")
     capture = render_clean(scene, cache_dir=cache_dir, progress=progress)
     cap = scene.capture
-    capture = observe(capture, nuisances=scene.nuisances, realism=scene.realism, noise=cap.noise,
+    capture = through_rig(capture, nuisances=scene.nuisances, realism=scene.realism, noise=cap.noise,
                       range_noise=cap.range_noise_m, seed=cap.seed)  # fmt: skip
     return write_capture(capture, out, overwrite=overwrite)
 

@@ -52,6 +52,7 @@ import numpy as np
 from ..capture import Camera, Capture, LampFilter, Rig
 from ..errors import UserError
 from ..files.atomic import atomic_write
+from ..files.digests import file_sha256
 from ..physics.polarization import analyzer_stack, filter_axes
 from .scene import LAMP_V1_KEYS, LampSpec, MitsubaMaterial, Scene, lamp_name, placement
 
@@ -191,7 +192,7 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
 MAX_WAVEFRONT = 1 << 21
 
 
-def pixel_rays(mi: ModuleType, sensor: Any, repeat: int = 1) -> Any:
+def sensor_rays(mi: ModuleType, sensor: Any, repeat: int = 1) -> Any:
     """Rays through every pixel centre, row-major from the top-left pixel, the image ``repeat`` times over."""
     import drjit as dr
 
@@ -237,7 +238,7 @@ def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=N
     done = 0
     while done < spp:
         n = min(batch, spp - done)
-        ray = pixel_rays(mi, sensor, n)
+        ray = sensor_rays(mi, sensor, n)
         sampler = mi.load_dict({"type": "independent"})
         sampler.seed(seed + done, w * h * n)
         spec, _, _ = integrator.sample(mscene, sampler, ray, None, True)
@@ -295,7 +296,7 @@ def surface(mi: ModuleType, mscene: Any) -> tuple[np.ndarray, np.ndarray]:
         P = np.array([list(si.p) for si in hits], float).reshape(h, w, 3)
         N = np.array([list(si.sh_frame.n) for si in hits], float).reshape(h, w, 3)
     else:
-        si = mscene.ray_intersect(pixel_rays(mi, sensor))
+        si = mscene.ray_intersect(sensor_rays(mi, sensor))
         valid = np.asarray(si.is_valid(), dtype=bool).reshape(h, w)
         P = np.stack([np.asarray(c, float) for c in si.p], -1).reshape(h, w, 3)
         N = np.stack([np.asarray(c, float) for c in si.sh_frame.n], -1).reshape(h, w, 3)
@@ -346,7 +347,7 @@ def render_key(scene: Scene) -> str:
         "max_depth": cap["max_depth"],
     }
     if scene.object.type == "mesh":
-        relevant["mesh_sha256"] = hashlib.sha256(Path(scene.object.file).read_bytes()).hexdigest()
+        relevant["mesh_sha256"] = file_sha256(scene.object.file)
     return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:24]
 
 

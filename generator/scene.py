@@ -35,7 +35,9 @@ from pydantic import (
 from ..files.dotted import set_dotted
 from ..errors import UserError
 from ..files.yamlfile import load_yaml_file, parse_setting
+from ..physics.camera import shifted_target
 from ..physics.reflectance import LOBES
+from .realism import expand
 
 PositiveFloat = Annotated[float, Field(gt=0)]
 Vec3 = tuple[float, float, float]
@@ -86,8 +88,6 @@ class CameraSpec(_Model):
         shift = self.shift_for(seed)
         if shift == (0.0, 0.0):
             return self.look_at
-        from ..physics.camera import shifted_target
-
         t = shifted_target(self.position, self.look_at, self.up, self.fov_x_deg, self.width, self.height, shift)
         return (float(t[0]), float(t[1]), float(t[2]))
 
@@ -310,7 +310,7 @@ class LampSpec(_Model):
 LAMP_V1_KEYS = ("position", "intensity", "polarizer_axis")
 
 
-class CameraNoise(_Model):
+class NoiseSpec(_Model):
     """Sensor noise applied after rendering (see :mod:`nearlight.generator.noise`)."""
 
     full_well: PositiveFloat = 20000.0
@@ -379,7 +379,7 @@ class CaptureSpec(_Model):
     analyzer_angles_deg: list[float] = Field(default_factory=lambda: [0.0, 22.5, 45.0, 67.5, 90.0, 112.5, 135.0, 157.5])
     spp: Annotated[int, Field(ge=1, le=1 << 16)] = 1
     max_depth: Annotated[int, Field(ge=2, le=64)] = 2
-    noise: CameraNoise | None = None
+    noise: NoiseSpec | None = None
     range_noise_m: Annotated[float, Field(ge=0)] = 0.0
     seed: Annotated[int, Field(ge=0)] = 0
 
@@ -392,7 +392,7 @@ class CaptureSpec(_Model):
 
 
 #: Most lamps a scene may have (each is rendered in its own passes).
-MAX_LAMPS = 8
+MAX_SCENE_LAMPS = 8
 
 
 class SeveralLampsError(ValueError):
@@ -427,7 +427,7 @@ BOTH_LAMP_KEYS = "lamps: give either lamp (one lamp) or lamps (a list of lamps),
 class Scene(_Model):
     """A scene file. Sections as the classes above; see ``scenes/*.yaml``.
 
-    The lamps are ``lamps`` (a tuple of :class:`LampSpec`, 1 to :data:`MAX_LAMPS`); a file gives either
+    The lamps are ``lamps`` (a tuple of :class:`LampSpec`, 1 to :data:`MAX_SCENE_LAMPS`); a file gives either
     ``lamp:`` (one lamp) or ``lamps:`` (a list). A one-lamp scene dumps as ``lamp:`` (exactly as before several
     lamps existed), a scene with several as ``lamps:``; :attr:`lamp` is the one lamp of a one-lamp scene.
     """
@@ -435,7 +435,7 @@ class Scene(_Model):
     camera: CameraSpec
     object: ObjectSpec
     material: MaterialSpec
-    lamps: Annotated[tuple[LampSpec, ...], Field(min_length=1, max_length=MAX_LAMPS)]
+    lamps: Annotated[tuple[LampSpec, ...], Field(min_length=1, max_length=MAX_SCENE_LAMPS)]
     capture: CaptureSpec = Field(default_factory=CaptureSpec)
     realism: Literal["none", "lab", "bench", "rough"] = "none"
     nuisances: Nuisances = Field(default_factory=Nuisances)
@@ -446,8 +446,6 @@ class Scene(_Model):
     def _profile(cls, data: Any) -> Any:
         """``lamp:`` as a one-element ``lamps:``; ``realism`` expanded into its nuisance values (keys the scene
         sets itself win)."""
-        from .realism import expand
-
         return expand(_lamp_list(data))
 
     @model_validator(mode="after")

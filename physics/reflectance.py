@@ -4,7 +4,7 @@ One implementation of the reflectance conventions of ``docs/physics.md``, used
 by every stage: the analytic generator (closed-form captures), the generator's
 tests (rendered radiance against the closed form), the estimator (its forward
 model) and the evaluation (Cramér–Rao bounds, the highlight point). Grading
-does not re-render an estimate with it: :mod:`nearlight.evaluation.resynthesis`
+does not re-render an estimate with it: :mod:`nearlight.evaluation.scoring.independent_resynthesis`
 is a deliberate second implementation, tested against this one.
 Lengths in metres, angles in radians. Numpy only; imports no pipeline stage.
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from ..errors import UserError, require_extra
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``rig`` verb with its two actions."""
@@ -37,7 +39,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_import(args: argparse.Namespace) -> int:
-    from ..errors import require_extra
     from .importer import import_rig
 
     require_extra("rig")
@@ -47,7 +48,6 @@ def run_import(args: argparse.Namespace) -> int:
 
 def run_export(args: argparse.Namespace) -> int:
     from ..capture import read_capture
-    from ..errors import UserError, require_extra
     from .export import export_rig
 
     require_extra("rig")

@@ -16,15 +16,13 @@ the mean of R, G and B.
 from __future__ import annotations
 
 import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from ..capture import Capture
-from ..files.atomic import cannot_write
+from ..files.atomic import write_folder
 from ..errors import UserError
 from ..files.outputs import check_capture_out
 from ..physics.camera import auto_saturation
@@ -71,11 +69,11 @@ def export_rig(capture: Capture, out: str | os.PathLike, *, mosaic: str = "mono"
         ``out``.
     """
     from ..generator.noise import adc_counts, noise_rngs
-    from ..generator.scene import CameraNoise
+    from ..generator.scene import NoiseSpec
 
     out = Path(out)
     if out.exists() or out.is_symlink():
-        raise UserError(f"{out}: already exists (rig export writes a new folder; choose another --out)")
+        _already_exists(out)
     check_capture_out(out, overwrite=False)
     if capture.stack is None or capture.analyzer_angles_deg is None:
         raise UserError(f"{capture.name}: no analyzer stack (pol<k> channels): a rig export samples the analyzer "
@@ -91,7 +89,7 @@ def export_rig(capture: Capture, out: str | os.PathLike, *, mosaic: str = "mono"
         raise UserError(f"{capture.name}: {W}x{H} pixels: a {mosaic} mosaic needs a width and height that are "
                         f"multiples of {k}")  # fmt: skip
     clean = mosaic_frame(capture, colour=mosaic == "colour")
-    noise = CameraNoise(full_well=full_well, read_noise=read_noise, bits=bits, saturation="auto")
+    noise = NoiseSpec(full_well=full_well, read_noise=read_noise, bits=bits, saturation="auto")
     saturation = auto_saturation(clean)
     rng, _ = noise_rngs(seed)
     z_shot, z_read = rng.standard_normal(clean.shape), rng.standard_normal(clean.shape)
@@ -125,12 +123,8 @@ def export_rig(capture: Capture, out: str | os.PathLike, *, mosaic: str = "mono"
         "depth": {"file": DEPTH_NAME[depth_format], "intrinsics": {"fx": float(fx), "fy": float(fy), "cx": float(cx), "cy": float(cy)},
                   "scale": float(depth_scale)},
     }  # fmt: skip
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
-    except OSError as exc:
-        raise cannot_write(out, exc) from None
-    try:
+
+    def fill(tmp: Path) -> None:
         write_png16(tmp / FRAME_NAME, dn)
         if depth_format == "png":
             write_png16(tmp / DEPTH_NAME["png"], z)
@@ -138,14 +132,12 @@ def export_rig(capture: Capture, out: str | os.PathLike, *, mosaic: str = "mono"
             write_exr_depth(tmp / DEPTH_NAME["exr"], z)
         header = f"# nearlight rig export of {capture.name} (rig simulator, noise seed {seed})\n"
         (tmp / RIG_NAME).write_text(header + yaml.safe_dump(rig, sort_keys=False))
-        tmp.rename(out)
-    except OSError as exc:  # a full disk, a quota: nothing half-written is left
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise cannot_write(out, exc) from None
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return out
+
+    return write_folder(out, fill, existing=_already_exists)  # a full disk, a quota: nothing half-written is left
+
+
+def _already_exists(out: Path) -> None:
+    raise UserError(f"{out}: already exists (rig export writes a new folder; choose another --out)")
 
 
 def mosaic_frame(capture: Capture, *, colour: bool) -> np.ndarray:

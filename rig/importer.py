@@ -47,7 +47,9 @@ from pathlib import Path
 import numpy as np
 
 from ..capture import Camera, Capture, Intrinsics, Sensor, write_capture
+from ..capture.silhouette import mirrored
 from ..errors import UserError
+from ..files.outputs import check_capture_out
 from ..physics.camera import inverse_response
 from .images import read_raw
 from .mesh import mesh_geometry
@@ -90,8 +92,6 @@ def import_rig(rig_path: str | os.PathLike, out: str | os.PathLike, *, overwrite
     Path
         ``out``.
     """
-    from ..files.outputs import check_capture_out
-
     check_capture_out(out, overwrite=overwrite)
     return write_capture(rig_capture(load_rig_file(rig_path)), out, overwrite=overwrite)
 
@@ -271,8 +271,6 @@ def check_depth_silhouette(rig: RigFile, stack: np.ndarray, P: np.ndarray) -> No
     """Refuse a depth map mirrored relative to the frames: the object's silhouette in the frames (signal) and
     in the range (valid depth) overlap clearly better with the depth flipped (:func:`nearlight.capture.silhouette.mirrored`;
     never refused: an object filling the image, a symmetric silhouette, a lit background)."""
-    from ..capture.silhouette import mirrored
-
     found = mirrored(np.nanmean(stack, axis=(0, -1)), np.isfinite(P).all(axis=-1))
     if found is not None:
         flip, best, base = found

@@ -54,7 +54,7 @@ def mesh_geometry(rig: RigFile) -> tuple[np.ndarray, np.ndarray]:
     vertices = (vertices * spec.units) @ R.T + t
     if vertex_normals is not None:
         vertex_normals = vertex_normals @ R.T  # a rotation: units scale all axes alike, normals keep their direction
-    origin, rays = pixel_rays(rig)
+    origin, rays = rig_rays(rig)
     tri = _first_hits(vertices, faces, origin, rays)
     hit = tri >= 0
     if not hit.any():
@@ -124,7 +124,7 @@ def read_mesh(path: Path, *, rig_file: Path) -> tuple[np.ndarray, np.ndarray, np
     return np.asarray(loaded.vertices, float), np.asarray(faces, np.int64), normals
 
 
-def pixel_rays(rig: RigFile) -> tuple[np.ndarray, np.ndarray]:
+def rig_rays(rig: RigFile) -> tuple[np.ndarray, np.ndarray]:
     """The camera's position and the unit ray through each pixel centre, world frame.
 
     OpenCV's pinhole: pixel ``(col, row)`` looks along

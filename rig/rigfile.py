@@ -11,7 +11,6 @@ rig file's folder.
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 from pathlib import Path
 from typing import Any
@@ -19,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import UserError
+from ..files.schema import all_numbers, is_number
 from ..files.yamlfile import load_yaml_file
 
 #: The version tag every rig file carries (``format``).
@@ -287,13 +287,6 @@ def _mesh(where: _Where, sec: dict, camera_pose: np.ndarray) -> MeshSpec:
     return MeshSpec(file=where.file(sec, "mesh.file"), to_world=to_world, units=MESH_UNITS[units])
 
 
-def _all_numbers(x: Any) -> bool:
-    """Nested lists of YAML numbers only."""
-    if isinstance(x, list):
-        return all(_all_numbers(v) for v in x)
-    return isinstance(x, (int, float)) and not isinstance(x, bool)
-
-
 def _is_rotation(R: np.ndarray) -> bool:
     """``R`` ``[3, 3]`` is a proper rotation (orthonormal to 1e-6, determinant > 0)."""
     return bool(np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0)
@@ -332,7 +325,7 @@ class _Where:
         v = doc.get(key.rpartition(".")[2], default)
         if v is None:
             raise UserError(f"{self.path}: {key}: missing")
-        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        ok = is_number(v)
         if not ok or (v <= low if strict else v < low):
             raise self.fail(key, f"a number {'>' if strict else '>='} {low:g}", v)
         return float(v)
@@ -341,7 +334,7 @@ class _Where:
         if v is None:
             raise UserError(f"{self.path}: {key}: missing")
         try:  # numbers only: numpy would also read "135" or true as a number
-            arr = np.asarray(v, dtype=float) if _all_numbers(v) else None
+            arr = np.asarray(v, dtype=float) if all_numbers(v) else None
         except (TypeError, ValueError):
             arr = None
         if arr is None or not np.all(np.isfinite(arr)) or (shape is not None and arr.shape != shape):

@@ -16,7 +16,7 @@ from nearlight.estimator.noise import camera_noise, censored_pixels
 from nearlight.estimator.separation import separate_capture
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.noise import adc_counts, add_camera_noise
-from nearlight.generator.scene import CameraNoise
+from nearlight.generator.scene import NoiseSpec
 from nearlight.physics.polarization import analyzer_modulation
 from nearlight.physics.reflectance import convert_bsdf
 
@@ -56,7 +56,7 @@ def test_censored_specular_is_unbiased_and_calibrated_on_the_generators_readings
     # 0.004-0.028 (0.0-2.0 read deviations) stays within 0.05, and the spread (0.976-1.009 measured,
     # standard error 0.005) within 5 %. The least-squares specular of the same readings is biased by
     # clipping: -0.36, -0.19, -0.09, -0.01 read deviations (measured)
-    noise = CameraNoise(full_well=5000, read_noise=10.0, bits=10, saturation=1.0)
+    noise = NoiseSpec(full_well=5000, read_noise=10.0, bits=10, saturation=1.0)
     gain, step = 1.0 / 5000, 1.0 / 1023
     read = 10.0 * gain
     sensor = ReadingModel(gain, read**2, step)

@@ -28,7 +28,7 @@ QUICK = {"camera.resolution": [160, 120], "capture.analyzer_angles_deg": [0, 45,
 @pytest.fixture(scope="module")
 def cylinder():
     """The clean 160×120 render of scenes/cylinder.yaml (~0.2 s), its lamp and its highlight point."""
-    from nearlight.evaluation.metrics import highlight_point
+    from nearlight.evaluation.scoring.metrics import highlight_point
     from nearlight.generator import load_scene, render_clean
 
     scene = load_scene(files("nearlight.scenes") / "cylinder.yaml", overrides=QUICK)
@@ -40,7 +40,7 @@ def cylinder():
 @pytest.mark.render
 def test_noisy_cylinder_holds_no_lamp(cylinder):
     # The bound itself: the data cannot place the lamp within 2 %, nor within 100 × the distance (measured 524 m).
-    from nearlight.evaluation.crlb import camera_noise_variance, specular_crlb
+    from nearlight.evaluation.scoring.crlb import camera_noise_variance, specular_crlb
 
     clean, lamp, hp = cylinder
     bound = specular_crlb(clean, noise_var=camera_noise_variance(clean.stack, noise=REAL_CAMERA))["crlb_lamp_m"]
@@ -54,10 +54,10 @@ def test_full_says_the_noisy_cylinder_has_no_highlight(cylinder, seed):
     # fitted lobe explains the pixels better than no specular by a −2 log-likelihood of 18.5, 20.8, 23.9 (seeds
     # 0–7: 7.6–24, pure noise fitted by 7 parameters), far below SPECULAR_EVIDENCE (100; every other paper scene
     # ≥ 1.7e6 with this camera).
-    from nearlight.generator.nuisances import observe
+    from nearlight.generator.nuisances import through_rig
 
     clean, _, _ = cylinder
-    est = estimate(observe(clean, noise=REAL_CAMERA, seed=seed), method="full")
+    est = estimate(through_rig(clean, noise=REAL_CAMERA, seed=seed), method="full")
     assert est.stages["full"]["specular_evidence"] < SPECULAR_EVIDENCE
     assert any(w.startswith("no specular highlight above the camera noise")
                for w in est.diagnostics.get("warnings", []))
@@ -81,12 +81,12 @@ def test_full_warns_on_an_analytic_capture_without_a_visible_highlight(seed):
     # measured evidence 9.1, 0, 16.8 on seeds 0–2 (lamp 106 %, 2900 %, 148 % off); Ks = 0.35: CRLB 0.74 mm,
     # evidence 2.0e7, lamp within 0.6 %: no warning.
     from nearlight.generator.analytic import analytic_capture
-    from nearlight.generator.nuisances import observe
+    from nearlight.generator.nuisances import through_rig
 
     def fit(ks: float):
         bsdf = {"model": "torrance_sparrow", "ks": [ks] * 3, "sigma": 0.09}
         clean = analytic_capture(lamp_position=(0.0, 0.3, 0.3), bsdf=bsdf)
-        est = estimate(observe(clean, noise=REAL_CAMERA, seed=seed), method="full")
+        est = estimate(through_rig(clean, noise=REAL_CAMERA, seed=seed), method="full")
         return est.stages["full"]["specular_evidence"], est.diagnostics.get("warnings", [])
 
     evidence, warnings = fit(1e-5)
@@ -106,10 +106,10 @@ def test_every_method_refuses_the_noisy_cylinder_with_its_reason(cylinder, seed)
     # never a lamp; the paper's ray stages refuse by themselves (E_p smallest at t_max).
     from nearlight.errors import UserError
     from nearlight.estimator.sanity import SIGNIFICANCE_MIN, highlight_significance, observation
-    from nearlight.generator.nuisances import observe
+    from nearlight.generator.nuisances import through_rig
 
     clean, _, _ = cylinder
-    cap = observe(clean, noise=REAL_CAMERA, seed=seed)
+    cap = through_rig(clean, noise=REAL_CAMERA, seed=seed)
     assert highlight_significance(cap, observation(cap, {})) < 3.5 < SIGNIFICANCE_MIN  # measured 2.2–3.0
     for method in ("full", "distant"):
         est = estimate(cap, method=method)
@@ -125,11 +125,11 @@ def test_a_capture_without_a_visible_highlight_is_refused_mitsuba_free(seed):
     # The analytic board of the test above (Ks 1e-5, the 12-bit camera: lamp CRLB 7.4 m) has no highlight above
     # the noise: `full` and `distant` are refused (`evident`); with Ks 0.35 both answer.
     from nearlight.generator.analytic import analytic_capture
-    from nearlight.generator.nuisances import observe
+    from nearlight.generator.nuisances import through_rig
 
     def capture(ks: float):
         bsdf = {"model": "torrance_sparrow", "ks": [ks] * 3, "sigma": 0.09}
-        return observe(analytic_capture(lamp_position=(0.0, 0.3, 0.3), bsdf=bsdf), noise=REAL_CAMERA, seed=seed)
+        return through_rig(analytic_capture(lamp_position=(0.0, 0.3, 0.3), bsdf=bsdf), noise=REAL_CAMERA, seed=seed)
 
     dim, bright = capture(1e-5), capture(0.35)
     for method in ("full", "distant"):

@@ -12,7 +12,7 @@ from nearlight.estimator.geometry import HOLE_RING_PX, enclosed_holes
 from nearlight.estimator.observation import observation_of
 from nearlight.estimator.first_stage import RaySearch, fast_search, initial_estimate
 from nearlight.generator.analytic import analytic_capture
-from nearlight.generator.nuisances import observe as nuisances_observe
+from nearlight.generator.nuisances import through_rig
 from nearlight.generator.scene import Nuisances
 
 TS = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.06}
@@ -179,7 +179,7 @@ def test_the_generators_own_highlight_holes_leave_the_peak_and_its_point(shape, 
     # Measured: 9e-10 m on the board, 2e-8 and 3e-7 m on the sphere.
     kw = {"bsdf": TS} if shape == "board" else SPHERE
     clean = analytic_capture(**kw)
-    holed = nuisances_observe(clean, nuisances=Nuisances.model_validate({"range": {"holes_shiny_above": shiny_above}}))
+    holed = through_rig(clean, nuisances=Nuisances.model_validate({"range": {"holes_shiny_above": shiny_above}}))
     assert not np.all(np.isfinite(holed.P[clean.surface_mask]))
     base, est = initial_estimate(clean.replace(N=None)), initial_estimate(holed)
     assert est.diagnostics["peak_pixel"] == base.diagnostics["peak_pixel"]

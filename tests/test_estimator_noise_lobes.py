@@ -10,7 +10,7 @@ from nearlight.estimator.noise import CENSOR_SIGMAS, VarianceModel, camera_noise
 from nearlight.estimator.separation import separate_capture
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.noise import add_camera_noise
-from nearlight.evaluation.metrics import truth_sigma
+from nearlight.evaluation.scoring.metrics import truth_sigma
 
 BSDFS = {
     "torrance_sparrow": {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1},

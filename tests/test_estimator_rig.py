@@ -9,7 +9,7 @@ from nearlight.capture import Rig
 from nearlight.errors import UserError
 from nearlight.estimator import estimate, separate
 from nearlight.generator.analytic import analytic_capture
-from nearlight.generator.nuisances import observe
+from nearlight.generator.nuisances import through_rig
 from nearlight.generator.scene import Nuisances
 from nearlight.physics.polarization import analyzer_stack
 
@@ -76,7 +76,7 @@ def test_estimate_through_a_real_analyzer_equals_the_ideal_one(method, shape):
     # relative; the stack is re-rounded to float32 after the analyzer). Measured: lamp ≤ 4e-9 m, Ks, σ ≤ 5e-8.
     eps = 100.0
     ideal = analytic_capture(shape=shape, bsdf=TS, width=96, height=72)
-    real = observe(ideal, nuisances=Nuisances.model_validate({"analyzer": {"extinction_ratio": eps}}))
+    real = through_rig(ideal, nuisances=Nuisances.model_validate({"analyzer": {"extinction_ratio": eps}}))
     assert real.rig.analyzer_extinction_ratio == eps
     a, b = estimate(ideal, method=method), estimate(real, method=method)
     scale = float(np.linalg.norm(np.asarray(ideal.camera.position) - a.diagnostics["ray_origin"]))
@@ -103,7 +103,7 @@ def test_rendered_leaky_lamp_and_real_analyzer_give_the_rendered_specular():
     eps_l, eps_a = 50.0, 100.0
     scene = load_scene(SCENES / "ts_board.yaml", overrides={"camera.resolution": [64, 48],
                                                             "lamp.polarizer_extinction_ratio": eps_l})
-    cap = observe(render_clean(scene, progress=False),
+    cap = through_rig(render_clean(scene, progress=False),
                   nuisances=Nuisances.model_validate({"analyzer": {"extinction_ratio": eps_a}}))
     assert (cap.rig.lamp_polarizer_extinction_ratio, cap.rig.analyzer_extinction_ratio) == (eps_l, eps_a)
     truth = cap.extra["truth_specular"].astype(float)

@@ -21,7 +21,7 @@ from nearlight.estimator.observation import observation_of
 from nearlight.errors import UserError
 from nearlight.estimator.sanity import (EXPLAINED_MIN, REACH, UnsupportedEstimate, check, explained_fraction,
                                         ks_scaled_fraction, own_highlight, predicted_specular, review)
-from nearlight.evaluation.tasks import run_method
+from nearlight.evaluation.engine.tasks import run_method
 from nearlight.generator.analytic import DEFAULT_BSDF, DEFAULT_LAMP_POSITION, analytic_capture
 
 KS = np.asarray(DEFAULT_BSDF["ks"], dtype=float)
@@ -190,7 +190,7 @@ def test_no_good_estimate_of_the_study_design_is_refused():
     """A corner of the sensitivity design (benchmarks/bench_sanity.py runs all of it: 576 estimates, none within
     5 % losing its lamp, the closest refused 9.2 %): the extremes of distance and roughness, board and sphere, no and high
     camera noise, full and paper-init. Every estimate within 5 % of its lamp must pass."""
-    from nearlight.generator.nuisances import observe as rig_observe
+    from nearlight.generator.nuisances import through_rig
 
     high = {"full_well": 5000, "read_noise": 10.0, "bits": 10}
     ray = np.array([0.05, 0.15, 0.35]) / np.linalg.norm([0.05, 0.15, 0.35])
@@ -200,7 +200,7 @@ def test_no_good_estimate_of_the_study_design_is_refused():
         lamp = centre + d * ray
         kw = {"sphere_centre": tuple(centre), "sphere_radius": 0.1} if shape == "sphere" else {}
         cap = analytic_capture(shape=shape, lamp_position=tuple(lamp), bsdf={**DEFAULT_BSDF, "sigma": sigma}, **kw)
-        cap = rig_observe(cap, noise=high, seed=3) if noisy else cap
+        cap = through_rig(cap, noise=high, seed=3) if noisy else cap
         obs = observation_of(cap)
         for method in ("full", "paper-init"):
             try:

@@ -2,8 +2,8 @@
 
 Captures: the two-lamp scene of scenes/two_lamps.yaml in closed form (two equal lamps 30° apart as
 seen from the board's centre, 0.5 m from it; a Torrance–Sparrow board, σ = 0.1) at 160 × 120, and
-the one-lamp analytic board and sphere. Distances are measured as evaluation/metrics.py's lamp
-error: from each true lamp's highlight point (:func:`~nearlight.evaluation.metrics.highlight_point`).
+the one-lamp analytic board and sphere. Distances are measured as evaluation/scoring/metrics.py's lamp
+error: from each true lamp's highlight point (:func:`~nearlight.evaluation.scoring.metrics.highlight_point`).
 
 Tolerances: the issue's acceptance, each lamp within 1 % of its distance. Measured: noise-free,
 1.3e-6 % (float32 images); with the camera noise below (12-bit, 20 000 e full well), 0.07–0.23 %
@@ -23,7 +23,7 @@ from nearlight.estimator.first_stage import stage_one
 from nearlight.estimator.highlights import highlights_of
 from nearlight.estimator.lampsum import SeveralLampModel
 from nearlight.estimator.several import START_DISTANCES, START_SIGMAS, ray_starts
-from nearlight.evaluation.metrics import lamp_scores
+from nearlight.evaluation.scoring.metrics import lamp_scores
 from nearlight.generator.analytic import analytic_capture, analytic_capture_lamps
 from nearlight.generator.noise import add_camera_noise
 
@@ -41,7 +41,7 @@ def two():
 
 def lamp_errors_pct(capture, est) -> list[float]:
     """Per true lamp, the error (% of its distance from its highlight point) of the estimated lamp matched
-    to it (:func:`nearlight.evaluation.metrics.lamp_scores`; NaN when missed)."""
+    to it (:func:`nearlight.evaluation.scoring.metrics.lamp_scores`; NaN when missed)."""
     s, n = lamp_scores(capture, est), len(capture.truth["lamps"])
     return [s["lamp_position_error_pct"]] if n == 1 else [s[f"lamp{i}_position_error_pct"] for i in range(n)]
 
@@ -123,7 +123,7 @@ def test_two_lamps_noise_free(two, lamps):
     assert np.allclose([lamp["colour"] for lamp in s["lamps"]], 0.3, rtol=1e-4)
     assert np.array_equal(est.lamp_position, s["lamps"][0]["position"])
     assert "warnings" not in est.diagnostics
-    # the evaluation sees both (Estimate.lamp_positions, matched by evaluation.matching): none missed
+    # the evaluation sees both (Estimate.lamp_positions, matched by evaluation.scoring.matching): none missed
     assert est.found_lamps().shape == (2, 3)
     scores = lamp_scores(two, est)
     assert (scores["n_lamps_found"], scores["lamps_missed"], scores["lamps_extra"]) == (2, 0, 0)

@@ -115,7 +115,7 @@ SCENE_BREAKS: dict[str, list[Any]] = {
                       {"saturation": "max"}, {"unknown": 1}],  # fmt: skip
     "capture.range_noise_m": [-0.001, "1mm"],
     "capture.seed": [-1, 1.5, "seed"],
-    # nuisances (issue 13)
+    # nuisances
     "realism": ["messy", 3, None],
     "lamp.polarizer_extinction_ratio": [0.9, -1, "ideal"],
     "lamp.anisotropy_k": [-1, "cos"],
@@ -866,8 +866,8 @@ _estimator_option_cases()
 @pytest.fixture(scope="module")
 def assets(tmp_path_factory) -> dict[str, Path]:
     """A finished tiny analytic sweep (results folder and its sweep file), built once."""
-    from nearlight.evaluation.engine import run_sweep
-    from nearlight.evaluation.sweep import load_sweep
+    from nearlight.evaluation.engine.run import run_sweep
+    from nearlight.evaluation.engine.sweep import load_sweep
 
     d = tmp_path_factory.mktemp("fuzz-assets")
     sweep = _write(d / "sweep.yaml", _dump(SWEEP))

@@ -1,5 +1,5 @@
 """Fuzz layer, part two: the newer verbs (`suite build` / `verify`, `score`, `compare` of scorecards, `gsa`,
-`reproduce --against`, plug-ins), hardened as the older ones (issue 42, point 6).
+`reproduce --against`, plug-ins), hardened as the older ones.
 
 The same rules as :mod:`tests.test_fuzz_inputs` (whose case type, helpers and runner it imports): every
 generated case must exit 2 with exactly one stderr line ``nearlight: error: ...`` naming the culprit, no
@@ -69,7 +69,7 @@ SUITE = {
 
 
 def _pinned(folder: Path, doc: dict, name: str = "suite.yaml") -> Path:
-    from nearlight.evaluation.suite import load_suite
+    from nearlight.evaluation.suites.suite import load_suite
 
     path = _write(folder / name, _dump(doc))
     return _write(path, _dump({**doc, "cases_hash": load_suite(path, check_pin=False).cases_hash}))
@@ -542,8 +542,8 @@ _plugin_cases()
 @pytest.fixture(scope="module")
 def assets(tmp_path_factory) -> dict[str, Path]:
     """A built tiny suite, a score folder of it, and a finished tiny sweep (built once)."""
-    from nearlight.evaluation.engine import run_sweep
-    from nearlight.evaluation.sweep import load_sweep
+    from nearlight.evaluation.engine.run import run_sweep
+    from nearlight.evaluation.engine.sweep import load_sweep
 
     d = tmp_path_factory.mktemp("fuzz-newer-assets")
     assert main(["suite", "build", str(_pinned(d, SUITE)), "--out", str(d / "suite"), "--quiet", "--no-cache"]) == 0
@@ -592,7 +592,7 @@ def _verifies(suite: Path, capsys) -> None:
 HOLDER = """
 import sys, time
 from pathlib import Path
-from nearlight.evaluation.suite import build_lock
+from nearlight.evaluation.suites.suite import build_lock
 out = Path(sys.argv[1]); out.mkdir(parents=True, exist_ok=True)
 with build_lock(out):
     print("locked", flush=True)

@@ -1,4 +1,4 @@
-"""Fuzz layer, rig files (issue 42, point 6): rig files that would give a useless capture, each one clear line.
+"""Fuzz layer, rig files: rig files that would give a useless capture, each one clear line.
 
 The rules of ``tests/test_fuzz_inputs.py`` (whose helpers this reuses): each
 generated case breaks a good rig folder (the simulator's ``rig export`` of an

@@ -1,4 +1,4 @@
-"""Sub-pixel camera shift and per-shot jitter (``camera.shift_px``, ``camera.jitter_px``; issue 11 item 4).
+"""Sub-pixel camera shift and per-shot jitter (``camera.shift_px``, ``camera.jitter_px``).
 
 Where the pixel grid falls on the highlight is luck on a real bench; the paper's
 first stage picks the brightest pixel, so its error depends on it. The camera

@@ -200,7 +200,7 @@ def test_render_and_a_sweep_task_with_the_same_seed_make_the_same_noisy_capture(
     # The one seed rule (nearlight.generator.noise): `nearlight render --set capture.seed=3` and a sweep task
     # with seed 3 on the same clean render see the same camera and range noise. No Mitsuba: the render is an
     # analytic capture standing in for render_clean.
-    from nearlight.evaluation.tasks import noisy_capture
+    from nearlight.evaluation.engine.tasks import noisy_capture
     from nearlight.generator import load_scene, pipeline
 
     clean = analytic_capture(width=64, height=48, analyzer_angles_deg=np.arange(8) * 22.5)

@@ -1,4 +1,4 @@
-"""Rig nuisances (issue 13): each one against a closed form, off values bit-identical to the code without them.
+"""Rig nuisances: each one against a closed form, off values bit-identical to the code without them.
 
 Clean renders are small (64×48, one pixel-centre sample: exact for direct
 light) and shared by the module. Golden values come from the closed forms in
@@ -14,7 +14,7 @@ from nearlight.capture import Rig, read_capture
 from nearlight.generator import add_camera_noise, add_range_noise, load_scene, render_clean
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.noise import noise_rngs
-from nearlight.generator.nuisances import bilinear_shift, nuisance_rng, nuisances_of, observe, range_holes
+from nearlight.generator.nuisances import bilinear_shift, nuisance_rng, nuisances_of, through_rig, range_holes
 from nearlight.generator.realism import PROFILES
 from nearlight.generator.render import render_key
 from nearlight.generator.scene import Nuisances
@@ -58,7 +58,7 @@ def test_every_nuisance_off_is_exactly_camera_then_range_noise(nuisances):
     # The code path before nuisances existed: add_camera_noise, then add_range_noise, with the one seed.
     clean = analytic_capture(width=48, height=36)
     before = add_range_noise(add_camera_noise(clean, noise=NOISE, seed=5), sigma_m=0.001, seed=5)
-    after = observe(clean, nuisances=nuisances, noise=NOISE, range_noise=0.001, seed=5)
+    after = through_rig(clean, nuisances=nuisances, noise=NOISE, range_noise=0.001, seed=5)
     _same(after, before)
     assert after.rig == Rig()
 
@@ -95,7 +95,7 @@ def test_which_nuisances_draw_from_the_seed():
     clean = analytic_capture(width=16, height=12)
     for nz in (_nz(analyzer={"extinction_ratio": 50, "offset_deg": 1}), _nz(range={"shift_px": [0.5, 0]})):
         assert not draws_from_seed(nz)
-        np.testing.assert_array_equal(observe(clean, nuisances=nz, seed=1).stack, observe(clean, nuisances=nz, seed=2).stack)
+        np.testing.assert_array_equal(through_rig(clean, nuisances=nz, seed=1).stack, through_rig(clean, nuisances=nz, seed=2).stack)
 
 
 def test_the_nuisance_stream_leaves_camera_and_range_noise_streams_alone():
@@ -186,7 +186,7 @@ def test_analyzer_extinction_ratio_is_malus_with_a_floor_on_a_mirror(mirror, eps
     # eps: I(θ) = Imax [cos²(θ − β) + sin²(θ − β)/eps] (Malus's law with a floor), so Imin/Imax = 1/eps.
     scene, clean = mirror
     angles = np.arange(0.0, 180.0, 1.0)
-    cap = observe(clean.replace(stack=analyzer_stack(np.stack([clean.extra[f"S{i}"] for i in range(3)]), angles),
+    cap = through_rig(clean.replace(stack=analyzer_stack(np.stack([clean.extra[f"S{i}"] for i in range(3)]), angles),
                                 analyzer_angles_deg=angles), nuisances=_nz(analyzer={"extinction_ratio": eps}))  # fmt: skip
     m = interior(clean.surface_mask) & (clean.extra["S0"][..., 0] > 0.05 * clean.extra["S0"][..., 0].max())
     I = cap.stack[:, m, 0].astype(float)
@@ -204,7 +204,7 @@ def test_analyzer_extinction_ratio_is_malus_with_a_floor_on_a_mirror(mirror, eps
 def test_analyzer_offset_turns_the_measured_angle_of_polarization(mirror):
     # The rig believes the nominal angles; the filter sits `offset` further on, so the fitted AoLP is β − offset.
     scene, clean = mirror
-    cap = observe(clean, nuisances=_nz(analyzer={"offset_deg": 10.0}))
+    cap = through_rig(clean, nuisances=_nz(analyzer={"offset_deg": 10.0}))
     np.testing.assert_array_equal(cap.analyzer_angles_deg, clean.analyzer_angles_deg)
     m = interior(clean.surface_mask) & (clean.extra["S0"][..., 0] > 0.05 * clean.extra["S0"][..., 0].max())
     S = linear_stokes(cap.stack.astype(float), cap.analyzer_angles_deg)
@@ -215,9 +215,9 @@ def test_analyzer_offset_turns_the_measured_angle_of_polarization(mirror):
 
 def test_analyzer_jitter_is_per_shot_from_the_seed():
     clean = analytic_capture(width=24, height=18, analyzer_angles_deg=list(np.arange(0, 180, 0.5)))
-    a = observe(clean, nuisances=_nz(analyzer={"jitter_deg": 0.5}), seed=3)
-    b = observe(clean, nuisances=_nz(analyzer={"jitter_deg": 0.5}), seed=3)
-    c = observe(clean, nuisances=_nz(analyzer={"jitter_deg": 0.5}), seed=4)
+    a = through_rig(clean, nuisances=_nz(analyzer={"jitter_deg": 0.5}), seed=3)
+    b = through_rig(clean, nuisances=_nz(analyzer={"jitter_deg": 0.5}), seed=3)
+    c = through_rig(clean, nuisances=_nz(analyzer={"jitter_deg": 0.5}), seed=4)
     np.testing.assert_array_equal(a.stack, b.stack)
     assert not np.array_equal(a.stack, c.stack)
     actual = np.asarray(a.truth["nuisances"]["analyzer"]["angles_deg"])
@@ -352,7 +352,7 @@ def test_vignetting_and_response_are_exactly_invertible(rng):
 def test_camera_nuisances_on_the_recorded_images():
     clean = analytic_capture(width=32, height=24)
     nz = _nz(camera={"vignetting": 0.2, "gamma": 2.2, "flicker": 0.05, "white_balance": [1.2, 1.0, 0.8]})
-    cap = observe(clean, nuisances=nz, seed=2)
+    cap = through_rig(clean, nuisances=nz, seed=2)
     rec = cap.truth["nuisances"]["camera"]
     gains, white = np.asarray(rec["flicker_gains"]), rec["response_white"]
     np.testing.assert_allclose(gains, 1 + 0.05 * nuisance_rng(2).standard_normal(2 * len(gains))[len(gains):])
@@ -370,7 +370,7 @@ def test_range_holes_appear_only_where_asked():
     b = clean.stack.astype(float).mean(axis=(0, -1))
     peak = b[clean.surface_mask].max()
     for shiny, dark in ((0.5, 0.0), (None, 0.3), (0.8, 0.1)):
-        cap = observe(clean, nuisances=_nz(range={"holes_shiny_above": shiny, "holes_dark_below": dark}))
+        cap = through_rig(clean, nuisances=_nz(range={"holes_shiny_above": shiny, "holes_dark_below": dark}))
         holes = clean.surface_mask & ~cap.surface_mask
         want = clean.surface_mask & (((b >= shiny * peak) if shiny else False) | (b < dark * peak))
         np.testing.assert_array_equal(holes, want)
@@ -388,7 +388,7 @@ def test_misregistration_moves_P_by_the_requested_sub_pixel_amount(shift):
     # pixel at (col, row) is the surface point seen at (col + dx, row + dy), to the bilinear interpolation's error
     # on a smooth surface (second order: < 0.01 px here).
     clean = analytic_capture(width=64, height=48)
-    cap = observe(clean, nuisances=_nz(range={"shift_px": list(shift)}))
+    cap = through_rig(clean, nuisances=_nz(range={"shift_px": list(shift)}))
     cam = clean.camera
     col, row, _ = project(cap.P.astype(float) - cam.position, cam.to_world, 64, 48, cam.fov_x_deg)
     ok = interior(clean.surface_mask, px=3) & np.isfinite(col)
@@ -403,7 +403,7 @@ def test_misregistration_moves_P_by_the_requested_sub_pixel_amount(shift):
 def test_depth_quantisation_keeps_points_on_their_rays():
     clean = analytic_capture(width=32, height=24)
     q = 0.002
-    cap = observe(clean, nuisances=_nz(range={"quantum_m": q}))
+    cap = through_rig(clean, nuisances=_nz(range={"quantum_m": q}))
     m = clean.surface_mask
     ray0 = clean.P[m].astype(float) - clean.camera.position
     ray1 = cap.P[m].astype(float) - clean.camera.position
@@ -418,7 +418,7 @@ def test_depth_quantisation_keeps_points_on_their_rays():
 
 def test_camera_pose_error_is_what_the_estimator_sees_and_truth_keeps_the_true_pose():
     clean = analytic_capture(width=32, height=24)
-    cap = observe(clean, nuisances=_nz(calibration={"position_m": [0.002, 0, -0.001], "rotation_deg": [0, 0.5, 0]}))
+    cap = through_rig(clean, nuisances=_nz(calibration={"position_m": [0.002, 0, -0.001], "rotation_deg": [0, 0.5, 0]}))
     np.testing.assert_allclose(cap.camera.position - clean.camera.position, [0.002, 0, -0.001])
     cos = np.dot(cap.camera.to_world[:3, 2], clean.camera.to_world[:3, 2])
     assert np.isclose(np.degrees(np.arccos(np.clip(cos, -1, 1))), 0.5, atol=1e-4) or np.isclose(
@@ -460,7 +460,7 @@ def test_a_bench_capture_records_every_nuisance_and_still_estimates(tmp_path):
 def test_render_and_a_sweep_task_with_the_same_seed_see_the_same_nuisances(tmp_path, monkeypatch):
     # The one seed rule, nuisances included: `nearlight render --set realism=bench --set capture.seed=3` and a sweep
     # task with seed 3 on the same scene make the same capture. No Mitsuba: an analytic capture stands in for the render.
-    from nearlight.evaluation.tasks import noisy_capture
+    from nearlight.evaluation.engine.tasks import noisy_capture
     from nearlight.generator import pipeline
 
     clean = analytic_capture(width=64, height=48, analyzer_angles_deg=np.arange(8) * 22.5)

@@ -84,7 +84,8 @@ def test_board_geometry_is_the_papers_regime(board):
 
 @pytest.mark.parametrize("kind", ["specular", "diffuse"])
 def test_truth_images_match_closed_form(board, kind):
-    # Issue 2: median relative error <= 0.5 %, p99 <= 3 % over object pixels >= 2 px from an edge.
+    # The generator's acceptance bar against the closed form: median relative error <= 0.5 %, p99 <= 3 %
+    # over object pixels >= 2 px from an edge (edge pixels mix object and background in one sample).
     _, cap = board
     m = interior(cap.surface_mask)
     med, p99 = rel_stats(cap.extra[f"truth_{kind}"][m], closed_form(cap, kind)[m])
@@ -161,7 +162,8 @@ def _trace(mi, scene, *, lamp: dict | None = None, part: str = "full", route: st
 
 
 def test_fresnel_mode_dolp_for_unpolarized_light(mi):
-    # Issue 2: specular DoLP = (Rs − Rp)/(Rs + Rp) at the half-vector angle, within 1 %, for unpolarized light;
+    # Fresnel mode's closed form: specular DoLP = (Rs − Rp)/(Rs + Rp) at the half-vector angle, within 1 %, for
+    # unpolarized light;
     # and the scalar lobe is unchanged (the Fresnel matrix is normalised to unit unpolarized reflectance).
     eta = 1.6
     scene = load_scene(_board_dict(polarization="fresnel", eta=eta))

@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from nearlight.evaluation.store import read_results
+from nearlight.evaluation.engine.store import read_results
 
 ROOT = Path(__file__).resolve().parents[1]
 

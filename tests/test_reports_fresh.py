@@ -1,11 +1,11 @@
-"""Every committed report describes the code in this checkout (nearlight.evaluation.provenance).
+"""Every committed report describes the code in this checkout (nearlight.evaluation.engine.provenance).
 
 A report under ``reports/`` records the command that made it and the content
 hash of every nearlight source file in the import closure of that command
 (``provenance.json``). When any of those files changes, the report is stale:
 this test fails and names the files and the command that regenerates it.
 Regression baselines (``*-baseline``) are held to the code by ``nearlight
-compare`` instead (tests/test_evaluation_smoke.py), so here they only have to
+compare`` instead (tests/evaluation/views/test_smoke_baseline.py), so here they only have to
 say what made them.
 """
 
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from nearlight.evaluation import provenance
+from nearlight.evaluation.engine import provenance
 
 REPORTS = Path(__file__).resolve().parent.parent / "reports"
 FOLDERS = sorted(p for p in REPORTS.iterdir() if p.is_dir())

@@ -11,7 +11,7 @@ from nearlight.capture import Intrinsics, Sensor, read_capture, write_capture
 from nearlight.errors import UserError
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.noise import add_camera_noise
-from nearlight.generator.nuisances import observe
+from nearlight.generator.nuisances import through_rig
 
 
 def small():
@@ -77,8 +77,8 @@ def test_bad_keys_are_one_line_errors(tmp_path, key, value, message):
 
 
 def test_generator_writes_its_noise_model_as_sensor(tmp_path):
-    # what `nearlight render` does after rendering (generator.pipeline: observe, then write_capture)
-    noisy = observe(small(), noise={"full_well": 12000, "read_noise": 4, "bits": 10, "saturation": "auto"}, seed=1)
+    # what `nearlight render` does after rendering (generator.pipeline: through_rig, then write_capture)
+    noisy = through_rig(small(), noise={"full_well": 12000, "read_noise": 4, "bits": 10, "saturation": "auto"}, seed=1)
     write_capture(noisy, tmp_path / "c")
     back = read_capture(tmp_path / "c")
     # saturation "auto" resolved to the number the noise used
@@ -86,16 +86,16 @@ def test_generator_writes_its_noise_model_as_sensor(tmp_path):
                                  read_noise=4.0, bits=10)
     assert back.sensor.saturation == pytest.approx(float(np.nanmax(small().stack)) / 0.9, rel=1e-6)
     # without camera noise there is no noise model to state
-    assert observe(small(), noise=None).sensor is None
+    assert through_rig(small(), noise=None).sensor is None
 
 
 def test_add_camera_noise_is_unchanged_by_its_refactor():
     # adc_counts() is the loop add_camera_noise had inline: the noisy image is DN x saturation / (2^bits - 1)
     from nearlight.generator.noise import adc_counts, noise_rngs
-    from nearlight.generator.scene import CameraNoise
+    from nearlight.generator.scene import NoiseSpec
 
     cap = small()
-    noise = CameraNoise(full_well=5000, read_noise=3, bits=8, saturation=2.0)
+    noise = NoiseSpec(full_well=5000, read_noise=3, bits=8, saturation=2.0)
     noisy = add_camera_noise(cap, noise=noise, seed=4)
     rng, _ = noise_rngs(4)
     zs, zr = rng.standard_normal(cap.stack.shape), rng.standard_normal(cap.stack.shape)

@@ -78,7 +78,8 @@ def test_full_lands_within_1_percent_of_its_estimate_on_the_original(tmp_path, m
     assert (imp.sensor.full_well, imp.sensor.read_noise, imp.sensor.bits) == (1e6, 5.0, 12)
     assert imp.sensor.saturation == pytest.approx(float(mosaic_frame(cap, colour=mosaic == "colour").max()) / 0.9)
     lamp, sigma = lamp_change(cap, imp)
-    # measured 0.59 % (mono, 160x120) and 0.50 % (colour, 320x240); the bar is 1 %
+    # this round trip measured 0.59 % (mono, 160x120) and 0.50 % of the lamp distance (colour, 320x240);
+    # the bar is 1 %, twice that
     assert lamp < 0.01 and abs(sigma) < 0.01
 
 

@@ -1,4 +1,4 @@
-"""A depth map mirrored relative to the image (issue 42, point 3): refused by `rig import` and by the estimator.
+"""A depth map mirrored relative to the image: refused by `rig import` and by the estimator.
 
 The rig simulator's round trip of an analytic board (and an off-centre
 sphere) with its depth map flipped: `rig import` refuses it in one line naming

@@ -1,4 +1,4 @@
-"""Captures with several lamps (issue 15): ``analytic_capture_lamps`` and ``truth.lamps`` in capture format v2.
+"""Captures with several lamps: ``analytic_capture_lamps`` and ``truth.lamps`` in capture format v2.
 
 numpy only. Golden values: the one-lamp analytic capture as it was before ``lamps`` existed
 (``analytic_capture_lamps([one])`` must give its images bit for bit, and ``analytic_capture``'s
@@ -97,7 +97,7 @@ def test_bad_lamps_of_analytic_capture(lamps, kwargs, expect):
 
 
 def test_analytic_capture_signature_is_unchanged():
-    # evaluation/renderers.py builds every analytic sweep scene from these parameters and hashes it into the
+    # evaluation/engine/renderers.py builds every analytic sweep scene from these parameters and hashes it into the
     # render key: the list (and defaults) at e8b09ea, before several lamps.
     import inspect
 

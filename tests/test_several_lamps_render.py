@@ -1,4 +1,4 @@
-"""Rendering several lamps (issue 15): linearity in the lamps, the closed form, the capture's truth.
+"""Rendering several lamps: linearity in the lamps, the closed form, the capture's truth.
 
 Renders are small (64×48 to 96×72, one pixel-centre sample: exact for direct light from point
 lamps, the generator's own acceptance regime). Golden values:
@@ -267,7 +267,7 @@ def test_full_counts_two_lamps_polarized_apart():
     import dataclasses
 
     from nearlight.estimator import estimate
-    from nearlight.evaluation.metrics import lamp_scores
+    from nearlight.evaluation.scoring.metrics import lamp_scores
     from nearlight.generator.noise import add_camera_noise
 
     scene = load_scene(TWO, overrides={"camera.resolution": [160, 120], "capture.analyzer_angles_deg": [0, 45, 90, 135]})

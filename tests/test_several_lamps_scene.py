@@ -1,4 +1,4 @@
-"""Scene files with several lamps (issue 15): ``lamps:`` lists, ``lamp:`` as a one-element list, ``--set`` on lamps.
+"""Scene files with several lamps: ``lamps:`` lists, ``lamp:`` as a one-element list, ``--set`` on lamps.
 
 No rendering here. Golden values: the scene files themselves (their positions, typed in
 ``scenes/two_lamps.yaml``), and the one-lamp scenes' dumps and render keys as they were before
@@ -18,7 +18,7 @@ from nearlight.cli import main
 from nearlight.errors import UserError
 from nearlight.generator import load_scene
 from nearlight.generator.render import render_key
-from nearlight.generator.scene import MAX_LAMPS, Scene, SeveralLampsError
+from nearlight.generator.scene import MAX_SCENE_LAMPS, Scene, SeveralLampsError
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 TWO = SCENES / "two_lamps.yaml"
@@ -116,8 +116,8 @@ def test_realism_profile_fills_in_every_lamp(tmp_path):
         ("two", ["lamps.1.polarizer_extinction_ratio=100"],
          "lamps.1.polarizer_extinction_ratio: every lamp's filter must have the same extinction ratio"),
         ("two", ["lamps=[]"], "lamps: Tuple should have at least 1 item"),
-        ("two", [f"lamps={[{'position': [0.1, 0.2, 0.3 + i / 100]} for i in range(MAX_LAMPS + 1)]}"],
-         f"lamps: Tuple should have at most {MAX_LAMPS} items"),
+        ("two", [f"lamps={[{'position': [0.1, 0.2, 0.3 + i / 100]} for i in range(MAX_SCENE_LAMPS + 1)]}"],
+         f"lamps: Tuple should have at most {MAX_SCENE_LAMPS} items"),
         ("one", ["lamp.position=[1, 2]"], "lamp.position: too few items"),  # v1's messages are unchanged
         ("one", ["lamp=3"], "lamp: Input should be a valid dictionary"),
     ],

@@ -1,0 +1,376 @@
+"""Regression verdicts: did a method get worse than in a baseline run of the same sweep?
+
+Rows are grouped by *check unit*: the configuration (the sweep's axis columns)
+and the method label. Seeds are not matched, so a re-run with other seeds, or
+on another machine, compares like with like. Each unit is one of two kinds:
+
+``exact`` (no camera or range noise: the numbers do not depend on the seed)
+    compared value against value. Worse when ``new > base + tolerance·|base|
+    + floor``, better when ``new < base − (tolerance·|base| + floor)``. The
+    per-metric floors (:data:`EXACT_FLOOR`) absorb what differs between two
+    machines for the same code: Dr.Jit renders differ in their last bits
+    between CPUs, and the estimators move by far less than the floors then
+    (measured on the smoke sweep, a 2-core Xeon against the baseline's
+    machine: at most 2.7e-6 m, 8.4e-4 % of the distance, 8e-6°, 5.7e-6 relative
+    in σ; the floors are 4–20 times that).
+
+``pooled`` (noisy: one row per seed)
+    the seeds' values of the baseline against the new run's, unpaired. Worse
+    only when the change is larger than the tolerance (``mean_new >
+    mean_base·(1 + tolerance)``, the asv rule) *and* unlikely under noise: a
+    one-sided Mann–Whitney U test at the Šidák-corrected level
+    ``1 − (1 − alpha)^(1/m)`` over the ``m`` pooled checks of the run, so the
+    chance that a re-run with other seeds is flagged anywhere is at most
+    ``alpha`` (default 5 %). Better is the mirror image. The change is printed
+    with a bootstrap confidence interval of the difference of means (at the
+    same corrected level). A unit with fewer than :data:`MIN_SEEDS` seeds on
+    either side cannot reach significance and is reported ``inconclusive``.
+
+A failure count that rises is checked the same way (exact units: any task that
+failed; pooled units: Fisher's exact test on the failure counts, in the same
+Šidák family). A unit of the baseline with no rows in the new results is a
+regression (``missing``).
+
+:func:`compare_frames` returns every check as a :class:`Check`;
+:func:`compare_dirs` adds the two folders' environments and the printed table.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ...errors import UserError
+from ...files.atomic import write_json
+from ...files.jsonable import jsonable
+from ...files.outputs import check_file_out
+from ..engine.environment import differences
+from ..engine.store import read_environments, read_sweep_json, read_results
+from ..scoring.metrics import INFO_COLUMNS, LOBE_COLUMN, METRICS, PER_LAMP_COLUMN
+
+#: Metrics compared (``runtime_s`` only on request; ``specular_rmse`` is in radiance units whose scale
+#: differs per scene, ``specular_rmse_rel`` carries the same information scale-free).
+COMPARED = tuple(m for m in METRICS if m not in ("runtime_s", "specular_rmse"))
+#: Absolute allowance of an exact check, in the metric's units (see the module docstring for the
+#: cross-machine spread these cover).
+EXACT_FLOOR: dict[str, float] = {
+    "lamp_position_error_m": 2e-5,
+    "lamp_position_error_pct": 5e-3,
+    "direction_error_deg": 2e-3,
+    "distance_error_m": 2e-5,
+    "sigma_rel_error": 1e-4,
+    "ks_rel_error": 1e-4,
+    "specular_rmse_rel": 1e-5,
+    "runtime_s": 0.0,
+}
+#: Fewest seeds per side for a pooled check to reach a verdict: with 5 against 5 the smallest one-sided
+#: Mann–Whitney p is 1/252 = 0.004, below the Šidák level of a few dozen checks at alpha = 0.05.
+MIN_SEEDS = 5
+VERDICTS = ("worse", "missing", "better", "same", "inconclusive")
+
+
+@dataclasses.dataclass
+class Check:
+    """One verdict: a method's metric in one configuration, new against baseline.
+
+    Attributes
+    ----------
+    method : str
+    config : dict
+        Axis column -> value.
+    metric : str
+        A :data:`~nearlight.evaluation.scoring.metrics.METRICS` column, or ``"failures"``.
+    kind : str
+        ``"exact"`` or ``"pooled"``.
+    n_base, n_new : int
+        Rows (seeds) on each side.
+    base, new : float
+        Baseline and new value (mean over seeds for pooled checks; failure count for ``failures``).
+    low, high : float
+        Confidence interval of ``new − base`` (pooled; NaN otherwise).
+    p_value : float
+        One-sided p of the test in the direction of the change (pooled checks whose change exceeds
+        the tolerance; NaN otherwise).
+    verdict : str
+        One of :data:`VERDICTS`.
+    """
+
+    method: str
+    config: dict[str, Any]
+    metric: str
+    kind: str
+    n_base: int
+    n_new: int
+    base: float
+    new: float
+    low: float = math.nan
+    high: float = math.nan
+    p_value: float = math.nan
+    verdict: str = "same"
+
+    @property
+    def regression(self) -> bool:
+        """Whether this check fails the comparison."""
+        return self.verdict in ("worse", "missing")
+
+    def line(self) -> str:
+        """One printable line."""
+        where = ", ".join(f"{k}={v}" for k, v in self.config.items())
+        unit = METRICS.get(self.metric, "tasks")
+        if self.verdict == "missing":
+            return f"{self.verdict:>12}  {self.method} [{where}]: no rows in the new results"
+        change = self.new - self.base
+        rel = f" ({100 * change / self.base:+.1f}%)" if self.base and math.isfinite(change) else ""
+        ci = f" [{self.low:+.3g}, {self.high:+.3g}]" if math.isfinite(self.low) else ""
+        p = f" p={self.p_value:.2g}" if math.isfinite(self.p_value) else ""
+        return (
+            f"{self.verdict:>12}  {self.method} [{where}] {self.metric}: {self.base:.6g} -> {self.new:.6g} "
+            f"{unit}, change {change:+.3g}{rel}{ci}{p} ({self.kind}, n={self.n_base}/{self.n_new})"
+        )
+
+
+def _axes(df: pd.DataFrame, axes: Sequence[str] | None) -> list[str]:
+    """Config columns: the sweep's axes present in the rows, else every non-result column."""
+    if axes is not None:
+        return [a for a in axes if a in df.columns]
+    skip = {"task_id", "task_index", "sweep", "seed", "noisy", "method", "render_key", "renderer", "code_version",
+            "status", "error", LOBE_COLUMN, *METRICS, *INFO_COLUMNS}
+    return [c for c in df.columns if c not in skip and not c.startswith("crlb_") and not PER_LAMP_COLUMN.match(c)]
+
+
+def _is_noisy(*sides: pd.DataFrame | None) -> bool:
+    """Whether a unit's numbers depend on the seed: the ``noisy`` column of either side, else
+    (results made before the column existed) whether its seeds disagree."""
+    sides = [s for s in sides if s is not None]
+    if any("noisy" in s for s in sides):
+        return any(bool(s["noisy"].any()) for s in sides if "noisy" in s)
+    for s in sides:
+        values = s[[m for m in COMPARED if m in s]].to_numpy(float)
+        if len(s) > 1 and not np.allclose(values, values[0], equal_nan=True, rtol=0, atol=0):
+            return True
+    return False
+
+
+def _finite(s: pd.Series) -> np.ndarray:
+    a = s.to_numpy(float)
+    return a[np.isfinite(a)]
+
+
+def _exact(metric: str, b: float, n: float, tolerance: float) -> str:
+    allow = tolerance * abs(b) + EXACT_FLOOR.get(metric, 0.0)
+    if math.isnan(n):
+        return "worse"
+    return "worse" if n > b + allow else "better" if n < b - allow else "same"
+
+
+def _bootstrap_ci(xb: np.ndarray, xn: np.ndarray, level: float, seed: int) -> tuple[float, float]:
+    """Percentile-bootstrap interval of mean(xn) − mean(xb) (scipy.stats.bootstrap, unpaired)."""
+    from scipy.stats import bootstrap
+
+    if np.ptp(np.concatenate([xb, xn])) == 0:
+        return 0.0, 0.0
+    res = bootstrap((xn, xb), lambda a, b, axis=-1: a.mean(axis=axis) - b.mean(axis=axis), paired=False,
+                    confidence_level=level, n_resamples=2000, method="percentile", random_state=seed)  # fmt: skip
+    return float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def compare_frames(
+    new: pd.DataFrame,
+    base: pd.DataFrame,
+    *,
+    axes: Sequence[str] | None = None,
+    tolerance: float = 0.05,
+    alpha: float = 0.05,
+    include_runtime: bool = False,
+    intervals: bool = True,
+) -> list[Check]:
+    """Every check of ``new`` against ``base`` (see the module docstring for the rules).
+
+    Parameters
+    ----------
+    new, base : DataFrame
+        Result rows: config columns, ``method``, ``status``, metric columns,
+        optionally ``noisy`` and ``seed``.
+    axes : sequence of str, optional
+        The config columns (the sweep's axes); default: guessed from the rows.
+    tolerance : float
+        Relative change below which no change counts, ≥ 0.
+    alpha : float
+        Family-wise false-alarm rate of the pooled checks, in (0, 1).
+    include_runtime : bool
+        Also check ``runtime_s`` (off by default: machines differ).
+    intervals : bool
+        Bootstrap the confidence interval of each pooled change (the verdicts do not use it;
+        off saves ~10 ms a check in loops over many re-runs).
+
+    Returns
+    -------
+    list of Check
+        In baseline order: per unit, failures first, then each metric.
+    """
+    from scipy.stats import fisher_exact, mannwhitneyu
+
+    if not (math.isfinite(tolerance) and tolerance >= 0):
+        raise UserError(f"--tolerance: expected a number >= 0, got {tolerance}")
+    if not (0 < alpha < 1):
+        raise UserError(f"--alpha: expected a number between 0 and 1, got {alpha}")
+    cols = _axes(base, axes)
+    keys = [*cols, "method"]
+    metrics = [*COMPARED, *(["runtime_s"] if include_runtime else [])]
+    new_groups = {k if isinstance(k, tuple) else (k,): g for k, g in new.groupby(keys, sort=False, dropna=False)}
+    units = []
+    for key, b in base.groupby(keys, sort=False, dropna=False):
+        key = key if isinstance(key, tuple) else (key,)
+        units.append((dict(zip(cols, key[:-1])), key[-1], b, new_groups.get(key)))
+
+    pooled = [u for u in units if u[3] is not None and _is_noisy(u[2], u[3])]
+    m = sum(1 + sum(_finite(b[x]).size > 0 for x in metrics if x in b) for _, _, b, _ in pooled)
+    level = 1.0 - (1.0 - alpha) ** (1.0 / max(m, 1))  # Šidák: per-check level for a family-wise alpha
+    checks: list[Check] = []
+    for i, (config, method, b, n) in enumerate(units):
+        if n is None:
+            checks.append(Check(method, config, "-", "-", len(b), 0, math.nan, math.nan, verdict="missing"))
+            continue
+        kind = "pooled" if _is_noisy(b, n) else "exact"
+        fb, fn = int((b["status"] != "ok").sum()), int((n["status"] != "ok").sum())
+        c = Check(method, config, "failures", kind, len(b), len(n), fb, fn)
+        if kind == "exact":
+            c.verdict = "worse" if fn > fb else "better" if fn < fb else "same"
+        elif fb != fn:
+            up = fn / len(n) > fb / len(b)
+            table = [[fn, len(n) - fn], [fb, len(b) - fb]]
+            c.p_value = float(fisher_exact(table, alternative="greater" if up else "less")[1])
+            c.verdict = ("worse" if up else "better") if c.p_value < level else "same"
+        checks.append(c)
+        bok, nok = b[b["status"] == "ok"], n[n["status"] == "ok"]
+        if nok.empty:  # every new task failed: the failures check says so, no metric to compare
+            continue
+        for metric in metrics:
+            if metric not in b or metric not in n:
+                continue
+            xb, xn = _finite(bok[metric]), _finite(nok[metric])
+            if xb.size == 0:
+                continue
+            c = Check(method, config, metric, kind, xb.size, xn.size, float(xb.mean()),
+                      float(xn.mean()) if xn.size else math.nan)  # fmt: skip
+            if kind == "exact":
+                c.verdict = _exact(metric, c.base, c.new, tolerance)
+            elif xn.size == 0:
+                c.verdict = "worse"
+            elif min(xb.size, xn.size) < MIN_SEEDS:
+                c.verdict = "inconclusive"
+            else:
+                if intervals:
+                    c.low, c.high = _bootstrap_ci(xb, xn, 1.0 - level, seed=i)
+                # tested only where the change exceeds the tolerance (the asv rule), so p is NaN otherwise
+                if c.new > c.base * (1.0 + tolerance):
+                    c.p_value = float(mannwhitneyu(xn, xb, alternative="greater").pvalue)
+                    c.verdict = "worse" if c.p_value < level else "same"
+                elif c.new < c.base * (1.0 - tolerance):
+                    c.p_value = float(mannwhitneyu(xn, xb, alternative="less").pvalue)
+                    c.verdict = "better" if c.p_value < level else "same"
+            checks.append(c)
+    return checks
+
+
+def _is_score(df: pd.DataFrame) -> bool:
+    """Whether ``df`` holds the rows of a ``nearlight score`` run (its ``renderer`` column is ``suite``)."""
+    return "renderer" in df and not df.empty and bool((df["renderer"] == "suite").all())
+
+
+def _as_scores(
+    new: pd.DataFrame, base: pd.DataFrame, axes: Sequence[str] | None
+) -> tuple[pd.DataFrame, pd.DataFrame, list[str], str]:
+    """Two score runs as :func:`compare_frames` compares them, and the note that says how.
+
+    A suite's inputs are frozen (the camera noise is in the stored capture), so every case is a unit
+    compared value against value (``noisy`` False; the unit is the case's categories and seed). Two runs
+    of one method each, different methods, are compared method against method on the same cases.
+    """
+    axes = [*(axes or []), "seed"]
+    new, base = new.assign(noisy=False), base.assign(noisy=False)
+    mn, mb = sorted(set(new["method"])), sorted(set(base["method"]))
+    note = "note: scorecards: every case of the frozen suite compared value against value"
+    if len(mn) == 1 and len(mb) == 1 and mn != mb:
+        new = new.assign(method=mb[0])
+        note += f"; method {mn[0]!r} (new) against {mb[0]!r} (baseline)"
+    return new, base, axes, note
+
+
+def compare_dirs(
+    new_dir: str | os.PathLike, base_dir: str | os.PathLike, *, json_out: str | os.PathLike | None = None,
+    **options: Any,
+) -> tuple[list[Check], list[str]]:  # fmt: skip
+    """Compare two sweep folders.
+
+    Parameters
+    ----------
+    new_dir, base_dir : path-like
+        Results folders of ``nearlight sweep`` (or of ``nearlight score``: :func:`_as_scores`).
+    json_out : path-like, optional
+        Also write every check, the summary and the environment differences as JSON.
+    **options
+        As :func:`compare_frames` (``tolerance``, ``alpha``, ``include_runtime``).
+
+    Returns
+    -------
+    checks : list of Check
+    lines : list of str
+        What to print: notes, environment differences, every check, a summary.
+    """
+    if json_out is not None:  # before any work: a file nearlight did not write is never replaced
+        check_file_out(json_out, "comparison", flag="--json")
+    new_dir, base_dir = Path(new_dir), Path(base_dir)
+    new, new_complete = read_results(new_dir)
+    base, _ = read_results(base_dir)
+    mn, mb = read_sweep_json(new_dir), read_sweep_json(base_dir)
+    axes = mb.get("axes")
+    lines = []
+    if _is_score(new) != _is_score(base):
+        score_dir, sweep_dir = (new_dir, base_dir) if _is_score(new) else (base_dir, new_dir)
+        raise UserError(f"{sweep_dir}: a sweep's results, and {score_dir} a scorecard's (`nearlight score`); "
+                        f"compare like with like: two sweeps, or two score folders")  # fmt: skip
+    if _is_score(new) and _is_score(base):
+        new, base, axes, note = _as_scores(new, base, axes)
+        lines.append(note)
+    checks = compare_frames(new, base, axes=axes, **options)
+
+    if not new_complete:
+        lines.append(f"note: {new_dir} is an incomplete sweep ({len(new)} rows)")
+    if mn.get("sweep_hash") != mb.get("sweep_hash"):
+        lines.append(
+            f"note: different task lists ({mn.get('name')!r} {mn.get('sweep_hash')} vs {mb.get('name')!r} "
+            f"{mb.get('sweep_hash')}): other seeds, methods or settings; units are matched by "
+            f"{', '.join(axes or ['config columns'])} and method"
+        )
+    env_new, env_base = read_environments(new_dir), read_environments(base_dir)
+
+    diffs = differences(env_new[-1] if env_new else None, env_base[-1] if env_base else None)
+    lines.append("environment: " + ("same as the baseline's" if not diffs else f"{len(diffs)} difference(s)"))
+    lines += [f"  {d}" for d in diffs]
+    lines += [c.line() for c in checks]
+    counts = {v: sum(c.verdict == v for c in checks) for v in VERDICTS}
+    n_pooled = sum(c.kind == "pooled" for c in checks)
+    summary = (
+        f"{len(checks)} checks ({n_pooled} pooled over seeds at family-wise alpha "
+        f"{options.get('alpha', 0.05):g}, tolerance {options.get('tolerance', 0.05):g}): "
+        + ", ".join(f"{counts[v]} {v}" for v in VERDICTS)
+    )
+    regressions = [c for c in checks if c.regression]
+    lines.append(f"WORSE than {base_dir}: {summary}" if regressions else f"ok: nothing worse than {base_dir}: {summary}")
+    if json_out is not None:
+        doc = {
+            "new": str(new_dir), "baseline": str(base_dir), "regression": bool(regressions), "counts": counts,
+            "options": {"tolerance": 0.05, "alpha": 0.05, "include_runtime": False, **options},
+            "environment_differences": diffs,
+            "checks": [{**dataclasses.asdict(c), "regression": c.regression} for c in checks],
+        }  # fmt: skip
+        write_json(json_out, jsonable(doc))
+    return checks, lines

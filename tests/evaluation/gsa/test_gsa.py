@@ -1,0 +1,273 @@
+"""Global sensitivity analysis (``nearlight.evaluation.gsa.study``): SALib's design and analysis recover known indices.
+
+Goldens: the Ishigami function ``sin x1 + a sin² x2 + b x3⁴ sin x1`` (a = 7, b = 0.1,
+x ~ U(-π, π)³) has closed-form Sobol' indices (Ishigami & Homma 1990; Saltelli et al.,
+*Global Sensitivity Analysis: The Primer*, 2008, §4.4): S1 = (0.3139, 0.4424, 0),
+ST = (0.5576, 0.4424, 0.2437). A linear model ``Σ c_i u_i`` of independent uniform
+inputs (u_i the input scaled to [0, 1]) has S1_i = ST_i = c_i² / Σ c_j², and every
+Morris elementary effect on the unit hypercube is exactly c_i (μ* = |c_i|, σ = 0).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from nearlight.cli import main
+from nearlight.evaluation.gsa.study import Design, Input, analyse, camera_position, load_study, sample
+
+PI = math.pi
+ISHIGAMI_S1 = np.array([0.3139, 0.4424, 0.0])
+ISHIGAMI_ST = np.array([0.5576, 0.4424, 0.2437])
+
+
+def ishigami(X: np.ndarray, a: float = 7.0, b: float = 0.1) -> np.ndarray:
+    return np.sin(X[:, 0]) + a * np.sin(X[:, 1]) ** 2 + b * X[:, 2] ** 4 * np.sin(X[:, 0])
+
+
+ISHIGAMI_INPUTS = [Input(f"x{i}", "uniform", (-PI, PI)) for i in (1, 2, 3)]
+
+
+def test_saltelli_sample_and_sobol_analysis_recover_the_ishigami_indices_within_their_intervals():
+    design = Design("sobol", "sobol", n=1024, seed=7)
+    X = sample(ISHIGAMI_INPUTS, design)
+    assert X.shape == (1024 * 5, 3)  # N (k + 2) without second order
+    rows, blocks = analyse(ISHIGAMI_INPUTS, design, X, ishigami(X))
+    assert blocks == 1024
+    s1 = np.array([r["S1"] for r in rows])
+    st = np.array([r["ST"] for r in rows])
+    s1c = np.array([r["S1_conf"] for r in rows])
+    stc = np.array([r["ST_conf"] for r in rows])
+    # the golden inside the 95 % bootstrap interval, and the intervals narrow enough to separate the inputs
+    # (at N = 1024 SALib's half-widths are ~0.03-0.06; 0.1 keeps the check from passing on vague intervals)
+    assert np.all(np.abs(s1 - ISHIGAMI_S1) <= s1c), (s1, s1c)
+    assert np.all(np.abs(st - ISHIGAMI_ST) <= stc), (st, stc)
+    assert np.all(s1c < 0.1) and np.all(stc < 0.1)
+
+
+def test_a_failed_output_drops_its_saltelli_block_and_the_rest_still_recover_the_indices():
+    design = Design("sobol", "sobol", n=1024, seed=7)
+    X = sample(ISHIGAMI_INPUTS, design)
+    Y = ishigami(X)
+    Y[[3, 17, 400]] = np.nan  # rows of blocks 0, 3 and 80 (5 rows a block)
+    rows, blocks = analyse(ISHIGAMI_INPUTS, design, X, Y)
+    assert blocks == 1021
+    st = np.array([r["ST"] for r in rows])
+    assert np.all(np.abs(st - ISHIGAMI_ST) <= np.array([r["ST_conf"] for r in rows]))
+
+
+@pytest.mark.parametrize("dist, bounds", [("uniform", (2.0, 4.0)), ("loguniform", (0.01, 1.0))])
+def test_linear_model_sobol_indices_are_the_squared_coefficients_shares(dist, bounds):
+    c = np.array([4.0, 2.0, 1.0])
+    inputs = [Input(f"u{i}", dist, bounds) for i in range(3)]
+    design = Design("sobol", "sobol", n=512, seed=3)
+    X = sample(inputs, design)
+    lo, hi = bounds
+    U = (np.log(X / lo) / np.log(hi / lo)) if dist == "loguniform" else (X - lo) / (hi - lo)  # uniform on [0, 1]
+    rows, _ = analyse(inputs, design, X, U @ c)
+    want = c**2 / np.sum(c**2)  # 16/21, 4/21, 1/21
+    for r, w in zip(rows, want):
+        assert abs(r["S1"] - w) <= r["S1_conf"] and abs(r["ST"] - w) <= r["ST_conf"], (r, w)
+
+
+def test_morris_elementary_effects_of_a_linear_model_are_its_coefficients():
+    c = np.array([4.0, -2.0, 1.0, 0.0])
+    inputs = [Input(f"u{i}", "uniform", (10.0, 20.0)) for i in range(4)]
+    design = Design("morris", "morris", n=20, seed=5, levels=4)
+    X = sample(inputs, design)
+    assert X.shape == (20 * 5, 4)  # r (k + 1)
+    rows, blocks = analyse(inputs, design, X, ((X - 10.0) / 10.0) @ c)
+    assert blocks == 20
+    # exact up to rounding: each effect is (Y(x + Δ e_i) - Y(x)) / Δ on the unit cube = c_i
+    np.testing.assert_allclose([r["mu"] for r in rows], c, atol=1e-9)
+    np.testing.assert_allclose([r["mu_star"] for r in rows], np.abs(c), atol=1e-9)
+    np.testing.assert_allclose([r["sigma"] for r in rows], 0.0, atol=1e-9)
+
+
+def test_a_categorical_input_picks_each_label_with_equal_probability():
+    inp = Input("bsdf", "labels", (0.0, 2.0), [("torrance_sparrow", "torrance_sparrow"), ("ward", "ward")])
+    X = sample([inp, Input("x", "uniform", (0.0, 1.0))], Design("s", "sobol", n=256, seed=1))
+    picked = [inp.value(x) for x in X[:, 0]]
+    assert 0.45 < picked.count("ward") / len(picked) < 0.55  # a scrambled Sobol' sequence: ~half exactly
+    assert inp.value(2.0) == "ward"  # the closed upper end maps to the last label
+
+
+# --------------------------------------------------------------------------- through the sweep engine and the CLI
+
+#: A plug-in "estimator" whose lamp-position error is a known linear model of the scene it is shown:
+#: (1 + 4 u_d + 2 u_r + 1 [Ward]) mm, u_d and u_r the lamp distance and the roughness scaled to [0, 1]
+#: (read from the capture's truth), so the study's indices are closed-form (module docstring).
+PLUGIN = '''
+import numpy as np
+from nearlight.estimator import Estimate, render_specular
+from nearlight.estimator.observation import observation_of
+
+
+def fit(capture):
+    truth = capture.truth
+    lamp = np.asarray(truth["lamp_position"])
+    bsdf = truth["bsdf"]
+    ward = bsdf["model"] == "ward"
+    sigma = bsdf["alpha"] / np.sqrt(2.0) if ward else bsdf["sigma"]
+    u_d = (np.linalg.norm(lamp) - 0.2) / 0.4
+    u_r = (sigma - 0.05) / 0.2
+    error = 1e-3 * (1.0 + 4.0 * u_d + 2.0 * u_r + 1.0 * ward)  # metres: millimetres, so the estimate stays sane
+    # Ks that re-synthesises the observed specular (least squares per channel), so the sanity rules pass it
+    est = Estimate(method="gsa_plugin:fit", lamp_position=lamp + [error, 0.0, 0.0], ks=np.ones(3), sigma=sigma)
+    unit, seen = render_specular(capture, est), observation_of(capture).specular
+    est.ks = np.sum(unit * seen, axis=(0, 1)) / np.sum(unit**2, axis=(0, 1))
+    return est
+'''
+
+
+def _study(tmp_path, monkeypatch, design):
+    (tmp_path / "gsa_plugin.py").write_text(PLUGIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    doc = {
+        "name": "linear", "renderer": "analytic",
+        "scene": {"width": 40, "height": 30},  # the board at the origin: lamp distance = |lamp position|; >= 10 highlight pixels
+        "methods": [{"name": "model", "method": "gsa_plugin:fit"}], "crlb": False,
+        "metrics": ["lamp_position_error_m"],
+        "inputs": {"lamp_distance": {"low": 0.2, "high": 0.6}, "roughness": {"low": 0.05, "high": 0.25},
+                   "bsdf": {"values": ["torrance_sparrow", "ward"]}},
+        "designs": {"main": design},
+    }  # fmt: skip
+    path = tmp_path / "linear.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def test_a_study_through_the_engine_and_the_cli_recovers_the_sobol_indices_of_a_linear_model(tmp_path, monkeypatch, capsys):
+    path = _study(tmp_path, monkeypatch, {"method": "sobol", "n": 64, "seed": 2})
+    assert main(["gsa", str(path), "--out", str(tmp_path / "res"), "--quiet"]) == 0
+    out, err = capsys.readouterr()
+    report = tmp_path / "res" / "main" / "gsa"
+    assert out == f"{report}\n"
+    # 64 blocks of (A, AB_1, AB_2, AB_3, B): AB_3 takes only bsdf from B, so it is A again when the coin
+    # fell the same way (32 of 64 blocks here): identical configurations run once
+    assert "sobol design, n = 64: 320 samples, 288 tasks" in err and "0 failed" in err
+    got = pd.read_csv(report / "indices.csv").set_index("input")
+    # variances of the three terms: 4² / 12, 2² / 12 and 1² / 4 (a fair coin): shares 16/23, 4/23, 3/23
+    want = pd.Series({"lamp_distance": 16 / 23, "roughness": 4 / 23, "bsdf": 3 / 23})
+    for name, w in want.items():
+        r = got.loc[name]
+        assert abs(r.S1 - w) <= r.S1_conf and abs(r.ST - w) <= r.ST_conf, (name, r.to_dict(), w)
+    assert (got["blocks"] == 64).all()
+    md = (report / "gsa.md").read_text()
+    assert re.search(r"\| model \| lamp_position_error_m \| lamp_distance 0\.\d+, roughness 0\.\d+, bsdf 0\.\d+ \|", md)
+    for png in ("indices_lamp_position_error_m.png", "scatter_model.png"):
+        assert (report / png).read_bytes()[:4] == b"\x89PNG"
+    prov = json.loads((tmp_path / "res" / "main" / "provenance.json").read_text())
+    assert set(prov["parts"]) == {"results", "gsa"}
+    assert prov["parts"]["results"]["command"].startswith(f"nearlight gsa {path} --out")
+    assert "evaluation/gsa/study.py" in prov["parts"]["gsa"]["code"]
+
+    # run again: nothing runs, the same report
+    assert main(["gsa", str(path), "--out", str(tmp_path / "res"), "--quiet"]) == 0
+    assert "ran 0 task(s), skipped 288 already done" in capsys.readouterr().err
+
+
+def test_a_morris_study_through_the_engine_gets_the_exact_elementary_effects(tmp_path, monkeypatch, capsys):
+    path = _study(tmp_path, monkeypatch, {"method": "morris", "n": 6, "seed": 4, "levels": 4})
+    assert main(["gsa", str(path), "--out", str(tmp_path / "res"), "--quiet"]) == 0
+    got = pd.read_csv(tmp_path / "res" / "main" / "gsa" / "indices.csv").set_index("input")
+    # a step of 2/3 of the range (4 levels) always flips the coin between its halves: effect 1 / (2/3) = 1.5
+    np.testing.assert_allclose(got.loc[["lamp_distance", "roughness", "bsdf"], "mu_star"], [4e-3, 2e-3, 1.5e-3], rtol=1e-6)
+    np.testing.assert_allclose(got["sigma"], 0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    "change, needle",
+    [
+        ({"inputs": {"lamp_distance": {"low": 0.5, "high": 0.2}, "roughness": {"low": 0.1, "high": 0.2}}},
+         "inputs.lamp_distance: a uniform input needs low < high"),
+        ({"inputs": {"lamp_distanse": {"low": 0.2, "high": 0.5}, "roughness": {"low": 0.1, "high": 0.2}}},
+         "inputs.lamp_distanse: unknown input"),
+        ({"inputs": {"bsdf": {"low": 0, "high": 1}, "roughness": {"low": 0.1, "high": 0.2}}},
+         "inputs.bsdf: the bsdf axis takes labels"),
+        ({"inputs": {"noise.read_noise": {"low": 1, "high": 5}, "roughness": {"low": 0.1, "high": 0.2}}},
+         "inputs.noise.read_noise: needs the file's noise"),
+        ({"designs": {"main": {"method": "fast", "n": 4}}}, "designs.main.method:"),
+        ({"designs": {"main": {"method": "sobol", "n": 100}}}, "designs.main: a sobol design needs n a power of 2"),
+        ({"metrics": ["lamp_error"]}, "metrics: unknown metric 'lamp_error'"),
+        ({"designs": {"main": {"method": "morris", "n": 4, "levels": 5}}},
+         "designs.main.levels: 5 is not a multiple of the 2 labels of input bsdf"),
+        ({"inputs": {"roughness": {"low": -0.1, "high": 0.2}, "lamp_distance": {"low": 0.2, "high": 0.5}}},
+         "designs.main: sample 10 (lamp_distance=0.2023, roughness=-0.03323): axes.roughness: "),
+        ({"axes": {"roughness": [0.1, 0.2]}}, "axes: a GSA file has `inputs` and `designs` instead of a sweep's axes"),
+        ({"seeds": 0}, "seeds: expected a positive count"),  # the sweep file's own rule (one schema)
+    ],
+)
+def test_a_bad_gsa_file_is_one_line_naming_file_and_key(tmp_path, monkeypatch, capsys, change, needle):
+    path = _study(tmp_path, monkeypatch, {"method": "sobol", "n": 4})
+    doc = yaml.safe_load(path.read_text())
+    doc.update(change)
+    path.write_text(yaml.safe_dump(doc))
+    assert main(["gsa", str(path), "--out", str(tmp_path / "res")]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and err.startswith(f"nearlight: error: {path}: ") and needle in err, err
+    assert not (tmp_path / "res").exists()
+
+
+# --------------------------------------------------------------------------- the shipped study: inputs to scene keys
+
+GLOBAL = Path(__file__).resolve().parents[3] / "sweeps" / "global.yaml"
+
+
+def test_each_sample_of_the_shipped_study_sets_the_scene_keys_its_inputs_drive():
+    study = load_study(GLOBAL, settings={"designs.screening.n": 2}, design="screening")
+    run = study.runs["screening"]
+    assert run.samples.shape == (14, 6) and [m.label for m in run.sweep.methods] == ["paper-init", "paper", "full", "distant"]
+    names = [i.name for i in study.inputs]
+    for x, ids in zip(run.samples, run.sample_tasks):
+        v = dict(zip(names, x))
+        task = next(t for t in run.sweep.tasks if t.task_id == ids["full"][0])
+        cam = np.asarray(task.scene["camera"]["position"])  # look_at is the origin, the board's normal +z
+        assert np.linalg.norm(cam) == pytest.approx(v["camera_distance"], rel=1e-9)
+        assert math.degrees(math.acos(cam[2] / np.linalg.norm(cam))) == pytest.approx(v["viewing_angle"], abs=1e-9)
+        assert cam[0] == pytest.approx(0.0, abs=1e-12) and cam[1] < 0  # in the base camera's plane, on its side
+        assert np.linalg.norm(task.scene["lamp"]["position"]) == pytest.approx(v["lamp_distance"], rel=1e-9)
+        assert task.scene["material"]["sigma"] == pytest.approx(v["roughness"], rel=1e-12)
+        assert task.noise == {"full_well": pytest.approx(v["noise.full_well"]), "read_noise": 5.0, "bits": 12}
+        assert task.range_noise == pytest.approx(v["range_noise"]) and task.seed == 0
+
+
+def test_camera_position_keeps_the_base_camera_without_inputs_and_follows_a_tilted_board():
+    scene = yaml.safe_load(GLOBAL.read_text())["scene"]
+    assert camera_position(scene, viewing_angle=None, camera_distance=None) == pytest.approx([0.0, -0.35, 0.5])
+    tilted = {**scene, "object": {**scene["object"], "normal": [0.0, 1.0, 1.0]}}  # the board's normal at 45 deg
+    cam = np.asarray(camera_position(tilted, viewing_angle=0.0, camera_distance=0.5))
+    np.testing.assert_allclose(cam, 0.5 * np.array([0.0, 1.0, 1.0]) / math.sqrt(2.0), atol=1e-12)
+
+
+def test_gsa_spells_quiet_cache_and_set_as_every_verb_does(tmp_path, monkeypatch, capsys):
+    from nearlight.cli import build_parser
+
+    verbs = build_parser()._subparsers._group_actions[0].choices  # noqa: SLF001 - argparse keeps its verbs here
+    assert {"--quiet", "--cache", "--no-cache", "--set", "--workers", "--scheduler", "--design"} <= {
+        s for a in verbs["gsa"]._actions for s in a.option_strings
+    }
+    path = _study(tmp_path, monkeypatch, {"method": "morris", "n": 2})
+    for argv, needle in [(["--set", "designs.main.n"], "--set 'designs.main.n': expected KEY=VALUE"),
+                         (["--design", "other"], "--design other: not a design of"),
+                         (["--workers", "0"], "--workers: expected a positive integer, got 0")]:  # fmt: skip
+        assert main(["gsa", str(path), "--out", str(tmp_path / "res"), *argv]) == 2
+        out, err = capsys.readouterr()
+        assert out == "" and err.count("\n") == 1 and needle in err, err
+
+
+def test_a_samples_output_is_the_mean_over_its_seeds_and_nan_when_any_failed():
+    from nearlight.evaluation.gsa.study import DesignRun, outputs
+
+    run = DesignRun(Design("d", "morris", n=1), np.zeros((3, 2)), None,
+                    [{"m": ["a", "b"]}, {"m": ["c"]}, {"m": ["d", "e"]}])  # fmt: skip
+    rows = pd.DataFrame({"task_id": list("abcde"), "status": ["ok", "ok", "ok", "ok", "error"],
+                         "lamp_position_error_m": [1.0, 3.0, 5.0, 7.0, math.nan]})  # fmt: skip
+    np.testing.assert_array_equal(outputs(run, rows, "lamp_position_error_m", "m"), [2.0, 5.0, np.nan])
