@@ -38,7 +38,7 @@ Stability: a ±1-ulp float32 change of every image (stack, P, N) moves the
 light direction by at most 1e-5 rad, ``lamp_position`` by at most 1e-5 of
 the camera–highlight distance and σ and Ks by at most 1e-4 relative
 (measured on analytic captures: ≤ 2e-7 and ≤ 7e-6;
-``tests/test_estimator_stability.py``). The reported lamp hangs from the
+``tests/estimator/test_stability.py``). The reported lamp hangs from the
 peak's surface point (below), a discrete choice: rounding does not move it
 (see :data:`~nearlight.estimator.observation.PEAK_TIE`), a larger change
 that makes another pixel the brightest does, by that pixel's offset, while

@@ -24,7 +24,7 @@ A range hole on the highlight (no ``P`` at the brightest pixels,
 the hole's surface points and normals come from a quadric fitted to the
 range around it (:func:`~nearlight.estimator.geometry.fill_range_holes`),
 for every origin; E_p and the regression use only pixels with range, so t*
-moves with the pixels the hole takes away (``tests/test_estimator_holes.py``).
+moves with the pixels the hole takes away (``tests/estimator/test_holes.py``).
 
 Option beyond the printed paper, named for what it is: ``origin``, where the
 ray of eq. 9 starts (:data:`ORIGINS`). ``peak`` (the default, the printed
@@ -46,7 +46,7 @@ difference between them picks the brighter one, and the lamp jumps to the
 mirror-image ray (σ, Ks and t stay). What stays put: with the same peak pixel
 and t, a ±1-ulp float32 change of every image (stack, P, N) moves the lamp by
 at most 1e-5 of the camera–highlight distance (it moves only with the ray)
-and σ and Ks by at most 1e-4 relative (``tests/test_estimator_stability.py``).
+and σ and Ks by at most 1e-4 relative (``tests/estimator/test_stability.py``).
 """
 
 from __future__ import annotations

@@ -128,7 +128,7 @@ def full_estimate(
     (:func:`peak_ray_starts`) makes the answer independent of which start wins when
     several reach the same minimum, and of the peak pixel ``paper-init``
     picks (a symmetric board's two mirror-image peaks give the same lamp).
-    Stability (``tests/test_estimator_stability.py``): a ±1-ulp float32
+    Stability (``tests/estimator/test_stability.py``): a ±1-ulp float32
     change of every image (stack, P, N) moves the lamp by at most 3e-5 of
     the camera–highlight distance and σ and Ks by at most 1e-4 relative.
     Where the data hold two minima of equal cost to the last bits, the

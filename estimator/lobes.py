@@ -10,7 +10,7 @@ what only a fit needs: the derivatives of the radiance per unit colour
 with respect to ``c``, ``cos θi`` and the roughness ``a``, as
 log-derivatives (``∂ ln F / ∂ ·``), written out per family below and checked
 against finite differences of the physics module's shape in
-``tests/test_estimator_lobes.py``. ``cos θr`` does not depend on the lamp,
+``tests/estimator/test_lobes.py``. ``cos θr`` does not depend on the lamp,
 so no derivative in it is needed. ``c`` rather than α is the variable
 because every family is smooth in it at the mirror direction (α = 0), where
 ``∂α/∂L`` is not.

@@ -38,7 +38,7 @@ image change that reorders two grid values of E_energy in step 6 moves the
 lamp to another grid point; with the first stage's peak pixel and t and
 every step's choice unchanged, a ±1-ulp float32 change of every image moves
 the lamp by at most 1e-5 of the camera–highlight distance and σ and Ks by at
-most 1e-4 relative (``tests/test_estimator_stability.py``).
+most 1e-4 relative (``tests/estimator/test_stability.py``).
 """
 
 from __future__ import annotations
@@ -196,7 +196,7 @@ def alternating_minimisation(
 
     The same steps, tests and order as :func:`alternating_minimisation_reference`
     (the plain transcription), so the same walk: every t, every step count,
-    and Ks, σ to rounding (``tests/test_paper_fidelity.py``). What makes it
+    and Ks, σ to rounding (``tests/estimator/test_paper_fidelity.py``). What makes it
     fast, none of it changing a step: α² at each t from per-pixel scalars
     that do not depend on t (:meth:`Energy.columns`), remembered for the t
     the walk revisits; channel-major arrays whose sums are single-threaded

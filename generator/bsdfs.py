@@ -3,7 +3,7 @@
 ``nearlight_bsdf`` is one Mitsuba BSDF returning Mueller matrices in polarized
 variants: a specular lobe (``model`` ``torrance_sparrow``, ``ward``, ``ggx`` or
 ``beckmann``, the BRDFs of :mod:`nearlight.physics.reflectance`, written again
-in Dr.Jit; ``tests/test_generator_physics.py`` holds the two together) plus a Lambertian, fully depolarizing
+in Dr.Jit; ``tests/generator/test_physics.py`` holds the two together) plus a Lambertian, fully depolarizing
 diffuse lobe ``kd / π``. Every parameter is a plain number (one colour
 channel: the generator renders once per channel).
 

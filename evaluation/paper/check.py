@@ -3,7 +3,7 @@
 Every number of the reproduction is deterministic for given code: renders are
 exact for direct light, camera noise is seeded and a continuous function of the
 render, and every method is stable under float rounding (each states its
-bound in its docstring; ``tests/test_estimator_stability.py``). What can differ
+bound in its docstring; ``tests/estimator/test_stability.py``). What can differ
 between two machines is the renders' last bits (Dr.Jit compiles for the host
 CPU). Two runs of the same profile therefore agree, metric by metric and row by
 row, within :data:`TOLERANCES` (absolute, in the metric's units) or

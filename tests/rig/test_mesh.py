@@ -87,7 +87,7 @@ def test_board_from_an_obj_in_millimetres(tmp_path):
     # N: the face normal, written into the capture, +z up to rounding (turned to face the camera)
     assert np.abs(imp.N - cap.N)[both].max() < 1e-6
     lamp, sigma = lamp_change(cap, imp)
-    # measured 0.56 % (float depth: 0.59 %, tests/test_rig_roundtrip.py): only the demosaicing is left
+    # measured 0.56 % (float depth: 0.59 %, tests/rig/test_roundtrip.py): only the demosaicing is left
     assert lamp < 0.01 and abs(sigma) < 0.01
 
 

@@ -14,7 +14,7 @@ from nearlight.generator.noise import EXACT_POISSON_BELOW, noise_rngs, shot_elec
 from nearlight.physics.camera import AUTO_EXPOSURE
 from nearlight.generator.analytic import analytic_capture
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def flat_capture(value: float, *, h: int = 200, w: int = 250, k: int = 2) -> Capture:

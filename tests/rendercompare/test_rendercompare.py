@@ -27,7 +27,7 @@ BECKMANN_BOARD = {
 def beckmann_board():
     from nearlight.generator import load_scene, render_clean
 
-    scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "ts_board.yaml", overrides=BECKMANN_BOARD)
+    scene = load_scene(Path(__file__).resolve().parents[2] / "scenes" / "ts_board.yaml", overrides=BECKMANN_BOARD)
     return render_clean(scene, progress=False)
 
 

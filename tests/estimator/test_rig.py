@@ -44,7 +44,7 @@ def test_real_analyzer_is_undone_exactly(rng, method, eps):
 
 @pytest.mark.parametrize("eps", [3.0, 100.0])
 def test_leaky_lamp_polarizer_is_undone_in_ideal_mode(rng, eps):
-    # docs/physics.md (and generator/lamp.py, rendered in tests/test_generator_nuisances.py): a lamp filter of
+    # docs/physics.md (and generator/lamp.py, rendered in tests/generator/test_nuisances.py): a lamp filter of
     # extinction ratio ε passes I/2·(1 + 1/ε) with DoLP (1 − 1/ε)/(1 + 1/ε); an ideal-mode specular lobe keeps it
     # and the diffuse depolarizes. So with Is the ideal filter's specular radiance, the specular Stokes are
     # (1 + 1/ε) Is and (1 − 1/ε) Is (cos 2β, sin 2β), and Id adds to S0 only.
@@ -98,7 +98,7 @@ def test_rendered_leaky_lamp_and_real_analyzer_give_the_rendered_specular():
     from nearlight.generator import load_scene, render_clean
     from nearlight.estimator.observation import specular_image
 
-    from .test_generator_physics import SCENES
+    from ..generator.test_physics import SCENES
 
     eps_l, eps_a = 50.0, 100.0
     scene = load_scene(SCENES / "ts_board.yaml", overrides={"camera.resolution": [64, 48],

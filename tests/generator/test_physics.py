@@ -24,7 +24,7 @@ from nearlight.generator.polarimetry import fit_stokes
 
 pytestmark = pytest.mark.render
 
-SCENES = Path(__file__).resolve().parents[1] / "scenes"
+SCENES = Path(__file__).resolve().parents[2] / "scenes"
 SMALL = {"camera.resolution": [96, 72]}
 
 

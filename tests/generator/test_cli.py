@@ -16,7 +16,7 @@ from nearlight.generator import render as render_module
 
 pytestmark = pytest.mark.render
 
-SCENES = Path(__file__).resolve().parents[1] / "scenes"
+SCENES = Path(__file__).resolve().parents[2] / "scenes"
 TINY = ["--set", "camera.resolution=[48,36]", "--quiet", "--no-cache"]
 
 

@@ -209,12 +209,12 @@ def test_lamps_option_is_checked(value):
 @pytest.mark.parametrize("lamps", [2, pytest.param("auto", marks=pytest.mark.slow)])
 def test_two_lamps_rendered(lamps):
     # scenes/two_lamps.yaml rendered by Mitsuba at 160 × 120, noise-free; measured 0.19 % for each lamp
-    # (the render and the closed form differ by ≤ 0.5 % median per pixel, tests/test_generator_physics.py)
+    # (the render and the closed form differ by ≤ 0.5 % median per pixel, tests/generator/test_physics.py)
     from pathlib import Path
 
     from nearlight.generator import load_scene, render_clean
 
-    scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "two_lamps.yaml",
+    scene = load_scene(Path(__file__).resolve().parents[2] / "scenes" / "two_lamps.yaml",
                        overrides={"camera.resolution": [160, 120]})
     cap = render_clean(scene, progress=False)
     est = estimate(cap, method="full", lamps=lamps)

@@ -11,7 +11,7 @@ from nearlight.errors import UserError
 from nearlight.generator import Scene, load_scene
 from nearlight.generator.scene import align_z, euler_rotation
 
-SCENES = Path(__file__).resolve().parents[1] / "scenes"
+SCENES = Path(__file__).resolve().parents[2] / "scenes"
 SHIPPED = sorted(p.name for p in SCENES.glob("*.yaml"))
 
 

@@ -20,7 +20,7 @@ from nearlight.generator import load_scene
 from nearlight.generator.render import render_key
 from nearlight.generator.scene import MAX_SCENE_LAMPS, Scene, SeveralLampsError
 
-SCENES = Path(__file__).resolve().parents[1] / "scenes"
+SCENES = Path(__file__).resolve().parents[2] / "scenes"
 TWO = SCENES / "two_lamps.yaml"
 
 

@@ -16,7 +16,7 @@ from nearlight.generator import load_scene, render_clean
 from nearlight.generator.render import render_key
 from nearlight.physics.camera import look_at_matrix, project, shifted_target
 
-from .test_generator_physics import SCENES
+from .test_physics import SCENES
 
 SMALL = {"camera.resolution": [64, 48]}
 

@@ -21,7 +21,7 @@ from nearlight.generator.scene import Nuisances
 from nearlight.physics.camera import inverse_response, project, response, vignetting_gain
 from nearlight.physics.polarization import analyzer_stack, aolp, linear_stokes
 
-from .test_generator_physics import SCENES, interior
+from .test_physics import SCENES, interior
 
 SMALL = {"camera.resolution": [64, 48]}
 MIRROR = {**SMALL, "material.kd": [0.0, 0.0, 0.0]}  # ideal polarization, no diffuse: fully polarized light

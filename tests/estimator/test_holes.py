@@ -138,12 +138,12 @@ def test_every_method_and_origin_runs_on_a_board_with_a_hole(method, options):
     # origin (every origin), the sub-pixel window and the model's predicted peak. So on the board: the sub-pixel
     # and model origins are the no-hole ones (the image is unchanged and so is the geometry they read, to float
     # rounding: 1e-4 px covers the model's iteration tolerance, 1e-3 px); full, whose noise-free model is exact
-    # whatever pixels it fits, finds the lamp (1 mm: its tolerance in tests/test_estimator_full.py's noise-free
+    # whatever pixels it fits, finds the lamp (1 mm: its tolerance in tests/estimator/test_full.py's noise-free
     # cases, measured < 0.1 mm here). distant runs: its fit sees the specular pixels with range only, so its
     # lamp moves with the lost pixels (0.4 mm here, against its 0.18-m model error on a near lamp).
     cap = analytic_capture(bsdf=TS, with_normals=False, width=96, height=72)
     base = estimate(cap, method=method, sanity=False, **options)  # the method's own numbers (distant's board is
-    peak = tuple(base.diagnostics["peak_pixel"])  # refused by the sanity rules: tests/test_estimator_sanity.py)
+    peak = tuple(base.diagnostics["peak_pixel"])  # refused by the sanity rules: tests/estimator/test_sanity.py)
     holed, _ = _punch(cap, peak, 3)
     est = estimate(holed, method=method, sanity=False, **options)
     assert np.all(np.isfinite(est.lamp_position)) and np.isfinite(est.sigma)

@@ -13,7 +13,7 @@ lamps, the generator's own acceptance regime). Golden values:
   ``(L0 − L1)(n0 − n1)/spp`` (n_k: samples that picked lamp k), so with spp = 256 it stays within
   ``5/√256 = 0.31`` of ``|L0 − L1|`` (five binomial standard deviations) and its mean over the image
   within ``0.02·max|L0 − L1|`` (the mean of ~1000 such terms has σ ≈ 0.002).
-- closed form: the bounds of tests/test_generator_physics.py (median relative error ≤ 0.5 %, 99th
+- closed form: the bounds of tests/generator/test_physics.py (median relative error ≤ 0.5 %, 99th
   percentile ≤ 3 % over object pixels ≥ 2 px from an edge), against the sum of
   ``nearlight.physics.reflectance`` over the lamps and against ``analytic_capture_lamps``.
 """
@@ -38,7 +38,7 @@ from nearlight.physics import reflectance
 
 pytestmark = pytest.mark.render
 
-SCENES = Path(__file__).resolve().parents[1] / "scenes"
+SCENES = Path(__file__).resolve().parents[2] / "scenes"
 TWO = SCENES / "two_lamps.yaml"
 U = 2.0**-24  # float32 unit roundoff
 
