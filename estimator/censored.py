@@ -53,7 +53,7 @@ The neighbours' level is ``a``, not their diffuse level ``Imin = a − s/2``
 reading as well as to its modulation and pass a noisy level on to ``s``;
 with ``a`` the modulation alone decides (``Σ_k c_k = 0`` for evenly spaced
 angles) and a level's error enters only through the clipping. What this
-brings to ``full``'s lamp: docs/estimator-measurements.md, "Dark pixels".
+brings to ``full``'s lamp: docs/measurements/estimator-choices.md, "Dark pixels".
 """
 
 from __future__ import annotations

@@ -145,7 +145,7 @@ def full_estimate(
     evaluates its geometry once per lamp and roughness for the residuals,
     the Jacobian and the solved colour. Only the final fit sees every fitted
     pixel (``max_pixels``); it lands on the minimum a start on the whole mask
-    reaches (docs/estimator-measurements.md, "full").
+    reaches (docs/measurements/estimator-choices.md, "full").
 
     The lobe family (``lobe``): one named, or ``auto``: every family of
     :data:`~nearlight.estimator.lobes.FAMILIES` is fitted from the same
@@ -178,7 +178,7 @@ def full_estimate(
     crossed-analyzer readings, near zero and clipped although the pixel is
     bright, not its dark pixels. What the weights and the censored pixels
     bring, measured against the Cramér–Rao bound:
-    docs/estimator-measurements.md, "full".
+    docs/measurements/estimator-choices.md, "full".
 
     Whether there is a highlight at all: ``stages["full"]["specular_evidence"]`` is
     ``(χ²(Ks = 0) − χ²) / s²``, the −2 log-likelihood of the fitted lobe against no specular. Below

@@ -85,7 +85,7 @@ class SeveralLampModel:
     separated specular of lamps polarized at different angles ``β_k``
     (:func:`~nearlight.physics.polarization.specular_aolp`) is the sum of
     their polarized parts measured along β̂, not the sum of their radiances
-    (how much that matters: docs/estimator-measurements.md, "Several lamps").
+    (how much that matters: docs/measurements/estimator-choices.md, "Several lamps").
 
     Parameters
     ----------

@@ -244,7 +244,7 @@ def censored_pixels(capture: Any, noise: VarianceModel, surface: np.ndarray, *,
     smallest: a fully polarized specular with no diffuse (a black surface)
     has a reading near zero at the crossed angle across its whole
     highlight, which holds the lamp. (Fitted as separated, they bias the
-    lamp: docs/estimator-measurements.md, "Dark pixels".)
+    lamp: docs/measurements/estimator-choices.md, "Dark pixels".)
 
     Parameters
     ----------

@@ -26,7 +26,7 @@ into the slope; the same sphere's median error at 25 × 25: 0.25°), and the
 cut that bias further (0.015°) but amplifies the noise about 2.5 times,
 which on noisy range images cost more than it saved. What the windows
 bring to ``full``'s lamp against 3 × 3 plane fits:
-docs/estimator-measurements.md, "Normals from range".
+docs/measurements/estimator-choices.md, "Normals from range".
 The sums run as box filters (:func:`scipy.ndimage.uniform_filter`), so a
 window costs the same at any size.
 """

@@ -105,7 +105,7 @@ def weighted_fit_pixels(capture: Any, obs: Observation, *, noise: str, max_pixel
     separation, whose specular is biased there; those it cannot measure (no
     neighbour with a level, no convergence) are left out, unless fewer than
     10 pixels would be left (then all of :func:`fit_pixels`'s, as separated;
-    docs/estimator-measurements.md, "Dark pixels").
+    docs/measurements/estimator-choices.md, "Dark pixels").
 
     Returns
     -------

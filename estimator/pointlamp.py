@@ -291,7 +291,7 @@ def short_fit(model: Any, x0: np.ndarray, scale: float) -> dict:
     unknowns), with Kaufman's Jacobian (the full one with the solved
     colours' columns projected out): from the same starts it reaches the
     optimum more often, in fewer evaluations, than a fit of all 6K + 1
-    parameters (docs/estimator-measurements.md, "Point-lamp fits").
+    parameters (docs/measurements/estimator-choices.md, "Point-lamp fits").
     Budget: 30 evaluations for one lamp, 100 for several (a two-lamp start
     from a dim lamp's residual needs more).
 
@@ -352,7 +352,7 @@ def best_short_fit(model: Any, starts: Iterable[np.ndarray], scale: float) -> tu
     to find, and the remaining starts are there for when the first ones
     disagree. With ``full``'s starts tried middle distance first
     (:func:`peak_ray_starts`) it stops after two on nearly every capture
-    (docs/estimator-measurements.md, "Point-lamp fits").
+    (docs/measurements/estimator-choices.md, "Point-lamp fits").
 
     Parameters
     ----------

@@ -24,7 +24,7 @@ rays of the smoothed image's peaks under a far smaller dip
 pixels (:func:`screened_starts`) and the best go on to every family.
 
 How well this counts and places lamps, measured on analytic and rendered
-two-lamp captures: docs/estimator-measurements.md, "Several lamps".
+two-lamp captures: docs/measurements/estimator-choices.md, "Several lamps".
 """
 
 from __future__ import annotations
