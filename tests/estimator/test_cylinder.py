@@ -1,4 +1,4 @@
-"""Issue 42, point 2: ``full`` on the noisy ideal-rig cylinder of suites/paper-v1.yaml (``real_camera/none``).
+"""``full`` on the noisy ideal-rig cylinder of suites/paper-v1.yaml (``real_camera/none``).
 
 The cylinder's lamp (0.1, −0.2, 0.2) and camera (0, −0.35, 0.12) are both above its top cap (z = 0.06) and the
 cap's mirror point, (0.03, −0.305, 0.06), lies outside its 4 cm radius; the side (vertical normals) cannot mirror
@@ -66,7 +66,7 @@ def test_full_says_the_noisy_cylinder_has_no_highlight(cylinder, seed):
 @pytest.mark.render
 def test_full_finds_the_lamp_on_the_noise_free_cylinder(cylinder):
     # Noise-free, the lobe's tail (≤ 3.1e-5) is exact and holds the lamp: measured 0.059 % of the distance,
-    # specular evidence 2.3e9; the 2 % of issue 42's goal.
+    # specular evidence 2.3e9; 2 % leaves 30 times that.
     clean, lamp, hp = cylinder
     est = estimate(clean, method="full")
     assert np.linalg.norm(est.lamp_position - lamp) < 0.02 * np.linalg.norm(lamp - hp)

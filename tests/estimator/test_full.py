@@ -104,7 +104,7 @@ def test_full_recovers_lamp_and_reflectance_noise_free(kwargs):
     cap = analytic_capture(width=128, height=96, **kwargs)
     est = estimate(cap, method="full")
     bsdf = cap.truth["bsdf"]
-    # Issue 3's bar: lamp within 0.1 % of its distance, σ and Ks within 1 %. The only error
+    # The bar: lamp within 0.1 % of its distance, σ and Ks within 1 %. The only error
     # left is float32 storage of P, N and the stack (measured: ≤ 4e-6 relative); the sphere's
     # start from paper-init is 92 % off, so this also exercises the multi-start.
     assert _rel_lamp_error(est, cap) < 1e-3

@@ -1,4 +1,4 @@
-"""Paper fidelity (issue 11): where the ray of eq. 9 starts, the printed AM and its bounded variant.
+"""Paper fidelity: where the ray of eq. 9 starts, the printed AM and its bounded variant.
 
 Analytic captures only (no renderer); noise-free unless said.
 """
@@ -35,7 +35,7 @@ def test_paper_init_on_the_exact_mirror_ray_finds_t_within_one_percent(kwargs):
 @pytest.mark.parametrize("s", [0.1, 0.5, 1.0])
 def test_t_star_follows_one_over_one_plus_s(s):
     # The ray from m + s·δ (m the mirror point, δ the offset to the brightest pixel) on a TS
-    # board: t*/t ≈ 1/(1 + s) (issue 11: 0.905, 0.655, 0.485 at s = 0.1, 0.5, 1). The law
+    # board: t*/t ≈ 1/(1 + s) (measured 0.905, 0.655, 0.485 at s = 0.1, 0.5, 1). The law
     # balances the origin's offset s·δ against the lobe-centre shift the 1/r(t)² factor makes
     # for a lamp at t (both ∝ σ²); it holds the ray's direction fixed, but moving the origin
     # by s·δ also turns the mirror ray, a change proportional to s·δ itself. So the law's
@@ -80,7 +80,7 @@ def test_model_origin_closes_most_of_the_peak_offset(kwargs):
 
 def test_bounded_am_does_not_stall_where_the_printed_one_does():
     # On the exact mirror ray, started at half the true t (Ks, σ from the first stage): the
-    # printed AM's ±1 mm steps stop at a coordinate-wise minimum far short (issue 11: 0.55·t);
+    # printed AM's ±1 mm steps stop at a coordinate-wise minimum far short (measured: 0.55·t);
     # the bounded profile search reaches t to within Δt and σ, Ks to 1e-3.
     from nearlight.estimator.first_stage import stage_one
     from nearlight.estimator.paper import Energy, alternating_minimisation, bounded_minimisation

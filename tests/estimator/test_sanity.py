@@ -65,7 +65,7 @@ def test_each_rule_refuses_what_breaks_it(capture):
     below = anchor - (lamp - anchor)  # the lamp mirrored through the highlight point: behind the surface
     assert rule(capture, truth(lamp_position=below)) == "in-front"
     # Ks alone wrong: the lamp and σ still explain the highlight's shape, so only Ks is refused (ks-scale)
-    assert rule(capture, truth(ks=1e-6 * KS)) == "ks-scale"  # the cylinder's Ks ~ 1e-6 (issue 42)
+    assert rule(capture, truth(ks=1e-6 * KS)) == "ks-scale"  # the paper-v1 cylinder's fitted Ks ~ 1e-6
     assert rule(capture, truth(ks=3 * KS)) == "ks-scale"  # 3x too bright: 1 - 4 = -3 explained
     # the shape wrong too (σ 0.4 against 0.1): the whole estimate is refused
     assert rule(capture, truth(ks=1e-6 * KS, sigma=0.4)) == "explains"

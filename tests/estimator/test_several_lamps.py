@@ -1,4 +1,4 @@
-"""``full`` with several lamps (issue 15 part 2): highlight segmentation, the joint K-lamp fit, the count by BIC.
+"""``full`` with several lamps: highlight segmentation, the joint K-lamp fit, the count by BIC.
 
 Captures: the two-lamp scene of scenes/two_lamps.yaml in closed form (two equal lamps 30° apart as
 seen from the board's centre, 0.5 m from it; a Torrance–Sparrow board, σ = 0.1) at 160 × 120, and
