@@ -10,7 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..capture import Capture, read_capture
-from ..errors import UserError, require_extra
+from ..errors import UserError, one_line, require_extra
 from .distant import distant_estimate
 from .full import full_estimate
 from .options import check_options
@@ -52,7 +52,8 @@ def load_method(spec: str) -> Callable[..., Estimate]:
         spec = EXTRA_METHODS[spec][1]
     module_name, sep, func_name = spec.partition(":")
     if not sep or not module_name or not func_name:
-        raise UserError(f"method: expected one of {', '.join(METHODS)} or module:function, got {spec!r}")
+        raise UserError(f"unknown method {spec!r} (expected one of {', '.join([*METHODS, *EXTRA_METHODS])} "
+                        "or module:function)")
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
@@ -62,7 +63,7 @@ def load_method(spec: str) -> Callable[..., Estimate]:
             raise
         where = f" at {exc.filename}:{exc.lineno}" if isinstance(exc, SyntaxError) else ""
         raise UserError(f"method {spec}: importing module {module_name!r} failed with {type(exc).__name__}{where}: "
-                        f"{' '.join(str(exc).split())[:200]}") from None  # fmt: skip
+                        f"{one_line(exc)[:200]}") from None
     fn = getattr(module, func_name, None)
     if not callable(fn):
         raise UserError(f"method {spec}: module {module_name!r} has no function {func_name!r}")
@@ -144,7 +145,7 @@ def _run(fn: Callable[..., Estimate], capture: Capture, method: str, options: di
             raise
         except (Exception, SystemExit) as exc:  # sys.exit() in a plug-in is its failure, not nearlight's exit
             raise UserError(
-                f"method {method}: failed with {type(exc).__name__}: {' '.join(str(exc).split())[:200]} "
+                f"method {method}: failed with {type(exc).__name__}: {one_line(exc)[:200]} "
                 "(a plug-in is fn(capture, **options) -> nearlight.estimator.Estimate)"
             ) from None
     if not isinstance(result, Estimate):

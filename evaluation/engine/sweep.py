@@ -26,8 +26,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from ...errors import UserError
-from ...estimator import METHODS, load_method
-from ...estimator.api import EXTRA_METHODS
+from ...estimator import load_method
 from ...estimator.options import check_options
 from ...files.schema import is_number, validate
 from ...files.yamlfile import load_yaml_mapping
@@ -393,9 +392,6 @@ def check_method(method: str, options: Mapping[str, Any], *, where: str) -> None
     (:func:`nearlight.estimator.options.check_options`). Every message starts
     with ``where`` (a sweep file's ``methods[i]``, the ``--method`` option).
     """
-    if ":" not in method and method not in METHODS and method not in EXTRA_METHODS:
-        raise UserError(f"{where}: unknown method {method!r} "
-                        f"(expected one of {', '.join([*METHODS, *EXTRA_METHODS])} or module:function)")  # fmt: skip
     try:
         check_options(load_method(method), dict(options), method=method)
     except UserError as exc:

@@ -211,7 +211,7 @@ def first_stage_section(doc: dict[str, Any]) -> str:
     corrected = (f" The corrected variants (DEPARTURES, `{cor['sweep']}`) ran on jitters "
                  f"{', '.join(cor['jitters'])} of the same set only (they cost 5–10 s a capture), so their "
                  f"halves are one jitter each.") if cor else ""
-    return f"""## 5. The paper's first stage as a distribution (§4.1, issue 11)
+    return f"""## 5. The paper's first stage as a distribution (§4.1)
 
 {_source(ex)} The §4.1 Ward board, lamp at the paper's (13, 2, 3) units (one unit = {ex['paper_unit_m']} m
 and the board centre at the origin are our choice: the paper gives neither unit nor camera),
