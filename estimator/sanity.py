@@ -222,8 +222,8 @@ def predicted_specular(est: Estimate, obs: Observation) -> np.ndarray:
     return out
 
 
-def own_highlight(capture: Capture, est: Estimate, obs: Observation, *, predicted: np.ndarray | None = None,
-                  several: bool | None = None) -> tuple[np.ndarray, float]:
+def own_highlight(capture: Capture, est: Estimate, obs: Observation, *,
+                  predicted: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """The highlight a one-lamp estimate answers for, and the fraction of it that it explains.
 
     The observation's mask less its :func:`clipped` pixels (their specular
@@ -232,9 +232,6 @@ def own_highlight(capture: Capture, est: Estimate, obs: Observation, *, predicte
     part in the one the estimate explains best: a one-lamp method on a
     several-lamp capture answers for one lamp, and is held to that one's
     highlight (it also carries the several-highlights warning).
-
-    several : bool, optional
-        Whether the observation has several separate highlights (computed when not given).
 
     Returns
     -------
@@ -245,7 +242,7 @@ def own_highlight(capture: Capture, est: Estimate, obs: Observation, *, predicte
     """
     predicted = predicted_specular(est, obs) if predicted is None else predicted
     mask = obs.mask & ~clipped(capture)
-    several = several_highlights_warning(obs) is not None if several is None else several
+    several = several_highlights_warning(obs) is not None  # made once per estimate (observation.shared)
     labels = segment_highlights(obs.specular, obs.located).labels if several else np.zeros(mask.shape, int)
     regions = [mask & (labels == k) for k in range(1, int(labels.max()) + 1)] if labels.max() > 1 else []
     candidates = [r for r in regions if r.any()] or [mask]
@@ -354,8 +351,8 @@ def observation(capture: Capture, options: Mapping[str, Any]) -> Observation:
     return observation_of(capture, **{k: options[k] for k in ("separation", "threshold") if k in options})
 
 
-def check(capture: Capture, est: Estimate, obs: Observation, options: Mapping[str, Any] | None = None, *,
-          several: bool | None = None) -> Failure | None:
+def check(capture: Capture, est: Estimate, obs: Observation,
+          options: Mapping[str, Any] | None = None) -> Failure | None:
     """The first rule (module docstring) the estimate breaks, or None when it passes them all.
 
     Parameters
@@ -367,8 +364,6 @@ def check(capture: Capture, est: Estimate, obs: Observation, options: Mapping[st
         The capture's observation (:func:`observation`).
     options : mapping, optional
         The method's options (``t_max`` widens ``reach``).
-    several : bool, optional
-        Whether the observation has several separate highlights (:func:`own_highlight`).
 
     Returns
     -------
@@ -382,7 +377,7 @@ def check(capture: Capture, est: Estimate, obs: Observation, options: Mapping[st
                 return failed
         if len(est.found_lamps()) == 1:
             predicted = predicted_specular(est, obs)
-            region, explained = own_highlight(capture, est, obs, predicted=predicted, several=several)
+            region, explained = own_highlight(capture, est, obs, predicted=predicted)
             if region.any():
                 if (failed := _in_front(est, obs, region)) is not None:
                     return failed
@@ -414,10 +409,9 @@ def review(capture: Capture, est: Estimate, options: Mapping[str, Any]) -> Estim
         obs = observation(capture, options)
     except UserError as exc:
         return est.refused("observable", f"the rules cannot observe the capture's highlight: {exc}")
-    several = several_highlights_warning(obs)
     if len(est.found_lamps()) == 1:  # every one-lamp method says so on several highlights
-        est = est.with_warning(several)
-    failed = check(capture, est, obs, options, several=several is not None)
+        est = est.with_warning(several_highlights_warning(obs))
+    failed = check(capture, est, obs, options)
     if failed is None:
         return est
     if failed.rule == "ks-scale":  # the lamp and σ stand; Ks alone is not supported
