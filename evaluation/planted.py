@@ -6,7 +6,7 @@ plug-in method (``nearlight.evaluation.planted:further_along_ray``) that runs a
 built-in estimator and moves its lamp a given fraction further along the ray
 from the highlight. Run through a sweep under the built-in's own name (a
 method entry ``{method: "nearlight.evaluation.planted:further_along_ray", name:
-full}``), ``nearlight compare`` against a baseline of the real method must
+full, options: {base: full}}``), ``nearlight compare`` against a baseline of the real method must
 flag it; ``benchmarks/bench_compare.py`` measures the smallest such bias it
 catches.
 """
@@ -23,18 +23,19 @@ from ..estimator import Estimate, estimate
 from .scoring.metrics import highlight_point
 
 
-def further_along_ray(capture: Capture, *, method: str = "full", fraction: float = 0.02, **options: Any) -> Estimate:
-    """Run ``method`` on ``capture`` and move its lamp ``fraction`` of its distance further from the highlight.
+def further_along_ray(capture: Capture, *, base: str = "full", fraction: float = 0.02, **options: Any) -> Estimate:
+    """Run method ``base`` on ``capture`` and move its lamp ``fraction`` of its distance further from the highlight.
 
     Parameters
     ----------
     capture : Capture
-    method : str
-        A built-in method name.
+    base : str
+        A built-in method name (not ``method``: that is the name of the plug-in itself in
+        :func:`~nearlight.estimator.estimate`'s call).
     fraction : float
         Relative change of the highlight–lamp distance (0.02: 2 % further).
     **options
-        Passed to ``method``.
+        Passed to ``base``.
 
     Returns
     -------
@@ -43,7 +44,7 @@ def further_along_ray(capture: Capture, *, method: str = "full", fraction: float
         surface point where the estimated lamp's highlight lies (the centroid of the surface
         when the capture has no normals).
     """
-    return moved_along_ray(capture, estimate(capture, method=method, **options), fraction)
+    return moved_along_ray(capture, estimate(capture, method=base, **options), fraction)
 
 
 def moved_along_ray(capture: Capture, est: Estimate, fraction: float) -> Estimate:
@@ -67,3 +68,30 @@ def moved_along_ray(capture: Capture, est: Estimate, fraction: float) -> Estimat
     else:
         origin = np.nanmean(capture.P[capture.surface_mask], axis=0)
     return dataclasses.replace(est, lamp_position=origin + (1.0 + fraction) * (lamp - origin))
+
+
+def without_censoring(capture: Capture, **options: Any) -> Estimate:
+    """Method ``full`` with its dark pixels fitted as separated: the revert of the censored likelihood.
+
+    ``full`` measures the specular of pixels whose readings the sensor may have clipped at zero from
+    those readings (:func:`~nearlight.estimator.censored.censored_specular`); before that it fitted
+    them as separated, whose specular is biased upwards there. This plug-in finds no such pixel
+    (:func:`~nearlight.estimator.noise.censored_pixels` replaced for the call), so every fitted pixel
+    is fitted as separated. Replacing a module attribute is not thread-safe: run it in a sweep's worker
+    processes, one task at a time per process, as the engine does.
+
+    Parameters
+    ----------
+    capture : Capture
+    **options
+        ``full``'s options.
+    """
+    from unittest import mock
+
+    from ..estimator import pixels
+
+    def none_dark(capture: Any, noise: Any, surface: np.ndarray, **_: Any) -> np.ndarray:
+        return np.zeros(surface.shape, bool)
+
+    with mock.patch.object(pixels, "censored_pixels", none_dark):
+        return estimate(capture, method="full", **options)

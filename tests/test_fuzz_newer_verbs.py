@@ -12,6 +12,8 @@ traceback, and leave its folder byte for byte as it was. The families:
 - **suite files** and **build places**: keys of the wrong kind, parts, pins, an ``--out`` that is not a suite's;
 - **output places** checked before any work: ``compare --json``, ``score --out``, ``gsa``'s report place;
 - **compare** of a scorecard against a sweep;
+- **baseline**: an ``--out`` that is not a baseline nearlight made (the user's folder, a file, a damaged
+  ``sweep.json``), a ``--reason`` that is not one line, bad thresholds, a broken sweep file;
 - **references** of ``reproduce --against`` that are damaged or hand-edited (or agree with anything);
 - **plug-ins** (``--method module:function``) that fail at import or in the call.
 
@@ -420,6 +422,52 @@ def _compare_cases() -> None:
 
 
 _compare_cases()
+
+
+# --------------------------------------------------------------------------- baseline
+
+
+def _baseline_cases() -> None:
+    def argv(sweep: Path, out: Path, *extra: str) -> list[str]:
+        return ["baseline", str(sweep), "--out", str(out), "--quiet", *extra]
+
+    @case("baseline-out-user-folder")
+    def build(folder, assets):
+        return argv(_write(folder / "sweep.yaml", _dump(SWEEP)), _user_folder(folder)), "mine"
+
+    @case("baseline-out-is-a-file")
+    def build(folder, assets):
+        return argv(_write(folder / "sweep.yaml", _dump(SWEEP)), _write(folder / "notes.txt", "x")), "notes.txt"
+
+    @case("baseline-out-damaged-sweep-json")
+    def build(folder, assets):
+        out = folder / "old-baseline"
+        shutil.copytree(assets["results"], out)
+        (out / "sweep.json").write_text("{not json")
+        return argv(_write(folder / "sweep.yaml", _dump(SWEEP)), out), "sweep.json"
+
+    for name, value in {"empty": "", "blank": "   ", "two-lines": "first\nsecond"}.items():
+        @case(f"baseline-reason-{name}")
+        def build(folder, assets, value=value):
+            return argv(_write(folder / "sweep.yaml", _dump(SWEEP)), folder / "b", "--reason", value), "--reason"
+
+    for flag, value in (("--alpha", "2"), ("--alpha", "0"), ("--tolerance", "-1"), ("--tolerance", "nan"),
+                        ("--workers", "0")):  # fmt: skip
+        @case(f"baseline-{flag.strip('-')}-{value}")
+        def build(folder, assets, flag=flag, value=value):
+            return argv(_write(folder / "sweep.yaml", _dump(SWEEP)), folder / "b", flag, value), flag
+
+    for key, value in (("methods", ["nosuchmethod"]), ("seeds", -1), ("renderer", "povray")):
+        @case(f"baseline-sweep-{key}")
+        def build(folder, assets, key=key, value=value):
+            return argv(_write(folder / "sweep.yaml", _dump({**SWEEP, key: value})), folder / "b"), "sweep.yaml"
+
+    @case("baseline-sweep-missing")
+    def build(folder, assets):
+        return argv(folder / "nosuch.yaml", folder / "b"), "nosuch.yaml"
+
+
+_baseline_cases()
 
 
 # --------------------------------------------------------------------------- reproduce --against

@@ -19,10 +19,12 @@ docstring or a comment leaves every report fresh while changing a constant or
 a line of code makes the reports that import it stale; sweep and scene files
 are hashed as bytes.
 
-Baselines (a folder named ``*-baseline``, :func:`is_baseline`) record the
-same but are exempt from the freshness test: a regression baseline is made by
-an older commit on purpose, and ``nearlight compare`` (not a hash) decides
-whether new code still matches it.
+Regression baselines (``reports/smoke-baseline``) are held to the same rule:
+a baseline older than the code it pins cannot tell a regression of today's
+code from one that was already there. ``nearlight baseline``
+(:mod:`nearlight.evaluation.views.baseline`) regenerates one, with its
+verdict against the old one in writing, and ``nearlight compare`` warns when a
+baseline is stale.
 """
 
 from __future__ import annotations
@@ -45,13 +47,6 @@ from .environment import PACKAGE_ROOT, code_version
 
 #: File name written into a results folder.
 FILE = "provenance.json"
-#: Name ending of a regression baseline's folder: compared by ``nearlight compare``, not hashed.
-BASELINE_SUFFIX = "-baseline"
-
-
-def is_baseline(folder: str | os.PathLike) -> bool:
-    """Whether ``folder`` is a regression baseline (named ``*-baseline``), exempt from :func:`stale` checks."""
-    return Path(folder).name.endswith(BASELINE_SUFFIX)
 
 
 def _module_file(name: str) -> Path | None:

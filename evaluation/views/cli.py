@@ -1,4 +1,5 @@
-"""Verbs ``report`` and ``compare`` of the ``nearlight`` command: views of finished results folders.
+"""Verbs ``report``, ``compare`` and ``baseline`` of the ``nearlight`` command: views of finished results folders,
+and the one way to regenerate a regression baseline.
 
 The views are imported when a verb runs, so that registering them keeps
 ``nearlight --help`` fast.
@@ -7,10 +8,14 @@ The views are imported when a verb runs, so that registering them keeps
 from __future__ import annotations
 
 import argparse
+import sys
+
+from ...generator.cli import add_quiet_option
+from ..engine.cli import add_executor_options, check_executor, on_executor
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``report`` and ``compare`` to the ``nearlight`` command."""
+    """Add ``report``, ``compare`` and ``baseline`` to the ``nearlight`` command."""
     p = subparsers.add_parser(
         "report",
         help="error tables (Markdown, CSV) and plots (PNG) of a sweep's results",
@@ -39,6 +44,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--include-runtime", action="store_true", help="also compare runtime_s")
     p.set_defaults(run=_compare)
 
+    p = subparsers.add_parser(
+        "baseline",
+        help="regenerate a regression baseline, writing the new run's verdict against the old one beside it",
+        description="Run SWEEP.yaml into a new folder, report it, compare it with the baseline OUT (as `compare` "
+        "does) and replace OUT with it, writing every worse, missing and better check into OUT/verdict.md and "
+        "OUT/verdict.json. When a check is worse or missing, nothing is replaced unless --reason says why "
+        "(exit 1); OUT must be a sweep's results folder or absent.",
+    )
+    p.add_argument("sweep", metavar="SWEEP.yaml")
+    p.add_argument("--out", required=True, metavar="BASELINE_DIR", help="the baseline folder (replaced whole)")
+    p.add_argument("--reason", metavar="TEXT", help="one line: why the new baseline may be worse than the old")
+    p.add_argument("--tolerance", type=float, default=0.05, metavar="REL", help="as compare (default 0.05)")
+    p.add_argument("--alpha", type=float, default=0.05, metavar="P", help="as compare (default 0.05)")
+    add_executor_options(p)
+    add_quiet_option(p)
+    p.set_defaults(run=_baseline)
+
 
 def _report(args: argparse.Namespace) -> int:
     from .report import write_report
@@ -60,3 +82,19 @@ def _compare(args: argparse.Namespace) -> int:
     if args.json:
         print(args.json)
     return 1 if any(c.regression for c in checks) else 0
+
+
+def _baseline(args: argparse.Namespace) -> int:
+    from .baseline import VERDICT_MD, regenerate_baseline
+
+    check_executor(args)
+    done = on_executor(args, regenerate_baseline, args.sweep, args.out, reason=args.reason,
+                       tolerance=args.tolerance, alpha=args.alpha, progress=not args.quiet)  # fmt: skip
+    for line in done.lines:
+        print(line)
+    if not done.replaced:
+        print(f"nearlight baseline: {len(done.regressions)} check(s) worse or missing against {args.out}: "
+              "nothing replaced; if that is intended, run again with --reason saying why", file=sys.stderr)
+        return 1
+    print(f"{args.out}/{VERDICT_MD}")  # the result: the verdict written beside the new baseline
+    return 0

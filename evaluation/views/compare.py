@@ -181,6 +181,30 @@ def _bootstrap_ci(xb: np.ndarray, xn: np.ndarray, level: float, seed: int) -> tu
     return float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
+def _with_columns(df: pd.DataFrame, cols: Sequence[str]) -> pd.DataFrame:
+    """``df`` with every config column of the baseline, those it lacks empty: rows of another sweep's axes match
+    no unit of the baseline, so each of its units is ``missing`` (a verdict) rather than a crash."""
+    lacking = {c: None for c in cols if c not in df}
+    return df.assign(**lacking) if lacking else df
+
+
+def unchecked_units(new: pd.DataFrame, base: pd.DataFrame, *, axes: Sequence[str] | None = None) -> int:
+    """How many units (configuration and method) of ``new`` have no unit in ``base``: new configurations or
+    methods, which no check covers."""
+    cols = _axes(base, axes)
+    keys = [*cols, "method"]
+    seen = set(base.groupby(keys, sort=False, dropna=False).groups)
+    return sum(k not in seen for k in _with_columns(new, cols).groupby(keys, sort=False, dropna=False).groups)
+
+
+def check_thresholds(tolerance: float, alpha: float) -> None:
+    """Raise :class:`UserError` unless ``tolerance`` ≥ 0 and ``alpha`` in (0, 1) (``--tolerance``, ``--alpha``)."""
+    if not (math.isfinite(tolerance) and tolerance >= 0):
+        raise UserError(f"--tolerance: expected a number >= 0, got {tolerance}")
+    if not (0 < alpha < 1):
+        raise UserError(f"--alpha: expected a number between 0 and 1, got {alpha}")
+
+
 def compare_frames(
     new: pd.DataFrame,
     base: pd.DataFrame,
@@ -217,12 +241,10 @@ def compare_frames(
     """
     from scipy.stats import fisher_exact, mannwhitneyu
 
-    if not (math.isfinite(tolerance) and tolerance >= 0):
-        raise UserError(f"--tolerance: expected a number >= 0, got {tolerance}")
-    if not (0 < alpha < 1):
-        raise UserError(f"--alpha: expected a number between 0 and 1, got {alpha}")
+    check_thresholds(tolerance, alpha)
     cols = _axes(base, axes)
     keys = [*cols, "method"]
+    new = _with_columns(new, cols)
     metrics = [*COMPARED, *(["runtime_s"] if include_runtime else [])]
     new_groups = {k if isinstance(k, tuple) else (k,): g for k, g in new.groupby(keys, sort=False, dropna=False)}
     units = []
@@ -304,6 +326,27 @@ def _as_scores(
     return new, base, axes, note
 
 
+def _stale_baseline(base_dir: Path) -> list[str]:
+    """Warning lines when ``base_dir`` was made by other code than this checkout's (its provenance record).
+
+    A baseline older than the code it pins cannot tell a regression of today's
+    code from one that was already there when it was made; the warning names
+    what changed and the command that regenerates it. Nothing for a folder
+    without a record (results made elsewhere, or before records existed).
+    """
+    from ..engine import provenance
+
+    if not (base_dir / provenance.FILE).is_file():
+        return []
+    stale = provenance.stale(base_dir)
+    if not stale:
+        return []
+    return [f"warning: {base_dir} is older than the code it pins ({len(stale)} part(s) changed since it was made): "
+            "its verdicts hold the new code to old code's numbers; once this comparison is read, regenerate it "
+            "(`nearlight baseline`, which records the verdict)",
+            *(f"  {line if len(line) <= 300 else line[:200] + ' ... ' + line[-90:]}" for line in stale)]
+
+
 def compare_dirs(
     new_dir: str | os.PathLike, base_dir: str | os.PathLike, *, json_out: str | os.PathLike | None = None,
     **options: Any,
@@ -341,6 +384,10 @@ def compare_dirs(
         new, base, axes, note = _as_scores(new, base, axes)
         lines.append(note)
     checks = compare_frames(new, base, axes=axes, **options)
+    unchecked = unchecked_units(new, base, axes=axes)
+    if unchecked:
+        lines.append(f"note: {unchecked} unit(s) of {new_dir} (configuration and method) are not in the baseline: "
+                     "not checked")
 
     if not new_complete:
         lines.append(f"note: {new_dir} is an incomplete sweep ({len(new)} rows)")
@@ -350,6 +397,7 @@ def compare_dirs(
             f"{mb.get('sweep_hash')}): other seeds, methods or settings; units are matched by "
             f"{', '.join(axes or ['config columns'])} and method"
         )
+    lines += _stale_baseline(base_dir)
     env_new, env_base = read_environments(new_dir), read_environments(base_dir)
 
     diffs = differences(env_new[-1] if env_new else None, env_base[-1] if env_base else None)

@@ -130,7 +130,10 @@ def plot_axis(df: pd.DataFrame, axis: str, path: Path) -> None:
         if len(finite) and finite.max() / max(finite.min(), 1e-300) > 100:
             ax.set_yscale("log")
         ax.grid(alpha=0.3)
-    axs[0].legend(fontsize=8)
+        if ok.empty:  # every task failed: the failures are in the tables, not a curve
+            ax.text(0.5, 0.5, "no task succeeded", transform=ax.transAxes, ha="center", va="center")
+    if not ok.empty:
+        axs[0].legend(fontsize=8)
     fig.suptitle(f"error vs {axis}: median (line), 90th percentile (band)")
     save_png(fig, path, dpi=110)
 

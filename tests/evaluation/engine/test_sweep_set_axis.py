@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+import copy
 
 import pytest
 import yaml
@@ -10,12 +10,26 @@ import yaml
 from nearlight.errors import UserError
 from nearlight.evaluation.engine.sweep import load_sweep
 
-SMOKE = Path(__file__).resolve().parents[3] / "sweeps" / "smoke.yaml"
+#: A Mitsuba board at 64x48 with one lamp (``lamp``, so labels can set ``lamp.*``); loading it renders nothing.
+BOARD = {
+    "name": "board",
+    "renderer": "mitsuba",
+    "scene": {
+        "camera": {"position": [0.0, -0.35, 0.5], "look_at": [0.0, 0.0, 0.0], "fov_x_deg": 50.0,
+                   "resolution": [64, 48]},
+        "object": {"type": "board", "size": [0.4, 0.4]},
+        "material": {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1, "kd": [0.3, 0.4, 0.35]},
+        "lamp": {"position": [0.05, 0.15, 0.35], "intensity": [2.0, 2.0, 2.0]},
+        "capture": {"analyzer_angles_deg": [0, 45, 90, 135], "spp": 4},
+    },
+    "axes": {"lamp_distance": [0.3, 0.5], "noise": {"none": None, "sensor": {"full_well": 20000, "read_noise": 5.0,
+                                                                             "bits": 12}}},
+}  # fmt: skip
 
 
 def _smoke(**change):
-    """sweeps/smoke.yaml (a Mitsuba board at 64x48) with ``change`` (loading it renders nothing)."""
-    doc = yaml.safe_load(SMOKE.read_text())
+    """:data:`BOARD` with ``change``."""
+    doc = copy.deepcopy(BOARD)
     doc.update(seeds=3, methods=["full"], **change)
     return doc
 
