@@ -16,8 +16,10 @@ way to regenerate it, :func:`regenerate_baseline` (``nearlight baseline``):
    ``missing`` and ``better`` line, the summary, the reason) and
    ``verdict.json`` (the same, read by the tests), records its provenance
    (part ``verdict``: the code of this module, of the comparison and of the
-   run), drops the renders and result parts (not committed), and replaces the
-   old folder in one rename (:func:`~nearlight.files.atomic.write_folder`).
+   run), drops the renders and result parts (not committed), carries over
+   every file of the old folder that nearlight does not write (its README,
+   the user's notes: :data:`WRITTEN`), and replaces the old folder in one
+   rename (:func:`~nearlight.files.atomic.write_folder`).
 
 So the tests can demand, for the code in the checkout, both a fresh baseline
 (``tests/test_reports_fresh.py``: its provenance hashes) and a verdict record
@@ -51,6 +53,10 @@ VERDICT_MD = "verdict.md"
 VERDICT_FORMAT = "nearlight-baseline-verdict/1"
 #: Folders of a run that a baseline does not keep (re-made by any run; ``.gitignore`` has them too).
 NOT_KEPT = ("renders", "parts")
+#: What a regeneration writes at the top of a baseline folder; anything else there (a README, notes) is
+#: the user's or the project's, and is carried over into the new folder as it was.
+WRITTEN = frozenset({"sweep.json", "results.parquet", "environment.json", PROVENANCE, "report", *NOT_KEPT,
+                     VERDICT_JSON, VERDICT_MD})  # fmt: skip
 
 
 @dataclasses.dataclass
@@ -167,13 +173,21 @@ def regenerate_baseline(
                             f"nothing was replaced")
         write_report(tmp, command=command)
         if out.exists():
-            result.checks, result.lines = compare_dirs(tmp, out, tolerance=tolerance, alpha=alpha)
+            result.checks, lines = compare_dirs(tmp, out, tolerance=tolerance, alpha=alpha)
+            result.lines = [line.replace(str(tmp), "the new run") for line in lines]
         else:
             result.lines = [f"first baseline: {out} did not exist, nothing to compare"]
         if result.regressions and reason is None:
             raise _Refused
         for name in NOT_KEPT:
             shutil.rmtree(tmp / name, ignore_errors=True)
+        for kept in sorted(set(_entries(out)) - WRITTEN):
+            src = out / kept
+            if src.is_dir() and not src.is_symlink():
+                shutil.copytree(src, tmp / kept, symlinks=True)
+            else:
+                shutil.copy2(src, tmp / kept, follow_symlinks=False)
+            result.lines.insert(0, f"note: {src} is not written by nearlight: kept as it was")
         _write_verdict(tmp, out, result, reason, command)
         record(tmp, command=command, entry_modules=[__name__], part="verdict")
 
@@ -183,6 +197,11 @@ def regenerate_baseline(
         return result
     result.replaced = True
     return result
+
+
+def _entries(folder: Path) -> list[str]:
+    """The names at the top of ``folder`` (none when it does not exist)."""
+    return [p.name for p in folder.iterdir()] if folder.is_dir() else []
 
 
 def _write_verdict(folder: Path, out: Path, result: Regenerated, reason: str | None, command: str) -> None:

@@ -61,7 +61,14 @@ def test_first_baseline_then_a_regeneration_with_nothing_worse(tmp_path, capsys)
     assert "evaluation/views/compare.py" in parts["verdict"]["code"]
     assert not provenance.stale(out)
 
+    (out / "README.md").write_text("# Our baseline\n")  # the project's own file: carried over, never deleted
+    (out / "notes").mkdir()
+    (out / "notes" / "why.txt").write_text("made for the paper\n")
     assert _baseline(_sweep(tmp_path), out) == 0
+    assert (out / "README.md").read_text() == "# Our baseline\n"
+    assert (out / "notes" / "why.txt").read_text() == "made for the paper\n"
+    assert "note: " + str(out / "README.md") + " is not written by nearlight: kept as it was" in capsys.readouterr().out
+    assert ".partial" not in (out / "verdict.md").read_text()  # the new run is named as such, not by its staging place
     verdict = read_verdict(out)
     assert verdict["counts"]["worse"] == verdict["counts"]["missing"] == 0 and verdict["counts"]["same"] > 0
     assert verdict["replaced_code_version"] == verdict["code_version"]
