@@ -48,26 +48,32 @@ def further_along_ray(capture: Capture, *, base: str = "full", fraction: float =
 
 
 def moved_along_ray(capture: Capture, est: Estimate, fraction: float) -> Estimate:
-    """A copy of ``est`` with its lamp ``fraction`` of its distance further from the highlight.
+    """A copy of ``est`` with each of its lamps ``fraction`` of its distance further from its highlight.
 
     Parameters
     ----------
     capture : Capture
-        The capture ``est`` was made from (its ``P`` and ``N`` place the highlight).
+        The capture ``est`` was made from (its ``P`` and ``N`` place the highlights).
     est : Estimate
     fraction : float
 
     Returns
     -------
     Estimate
-        ``lamp_position = h + (1 + fraction)·(lamp − h)``, ``h`` as in :func:`further_along_ray`.
+        ``lamp_position = h + (1 + fraction)·(lamp − h)``, ``h`` as in :func:`further_along_ray`; every
+        row of ``lamp_positions`` (an estimate of several lamps) likewise, each from its own highlight.
     """
-    lamp = np.asarray(est.lamp_position, dtype=float)
-    if capture.N is not None:
-        origin = highlight_point(capture.P, capture.N, capture.camera.position, lamp)
-    else:
-        origin = np.nanmean(capture.P[capture.surface_mask], axis=0)
-    return dataclasses.replace(est, lamp_position=origin + (1.0 + fraction) * (lamp - origin))
+
+    def moved(lamp: np.ndarray) -> np.ndarray:
+        if capture.N is not None:
+            origin = highlight_point(capture.P, capture.N, capture.camera.position, lamp)
+        else:
+            origin = np.nanmean(capture.P[capture.surface_mask], axis=0)
+        return origin + (1.0 + fraction) * (lamp - origin)
+
+    lamps = None if est.lamp_positions is None else np.array([moved(lamp) for lamp in est.lamp_positions])
+    return dataclasses.replace(est, lamp_position=moved(np.asarray(est.lamp_position, dtype=float)),
+                               lamp_positions=lamps)
 
 
 def without_censoring(capture: Capture, **options: Any) -> Estimate:

@@ -63,6 +63,13 @@ BIAS = "full 2 % further"
 PLANTED = {"method": "nearlight.evaluation.planted:further_along_ray", "options": {"base": "full", "fraction": 0.02}}
 
 
+def _crashes(df: pd.DataFrame) -> list[str]:
+    """Errors of rows other than a method's own one-line refusal (``estimate: UserError: ...``, e.g. paper-init
+    on two separate highlights): a crash, which must not pass for a verdict."""
+    errors = df.loc[df["status"] == "error", "error"]
+    return errors[~errors.str.startswith("estimate: UserError: ")].tolist()
+
+
 def _variant(**changes) -> dict:
     """The smoke sweep file's content with some keys changed (its scene is inline)."""
     return yaml.safe_load(SMOKE.read_text()) | changes
@@ -99,7 +106,7 @@ def test_smoke_sweep_completes_and_reuses_renders(smoke_run):
     # 4 configurations x 6 methods x (noise-free: 1 seed + camera noise: 10 seeds); all re-use the 4 renders
     assert (s.tasks, s.ran, s.rendered, s.reused, s.complete) == (264, 264, 4, 260, True)
     df, _ = read_results(out)
-    assert (df["status"] != "error").all(), df.loc[df["status"] == "error", "error"].tolist()
+    assert not _crashes(df)
     # `full` on the noise-free one-lamp renders: measured 0.0008-0.022 % of the lamp's distance at 64x48 with
     # 4 spp (the baseline); 0.1 % allows 4 times the worst, still 20 times below what the 2 % bias test plants
     full = df[(df["method"] == "full") & (df["noise"] == "none") & (df["set"] != "two lamps")]
@@ -137,8 +144,8 @@ def test_revert_of_a_default_is_flagged_worse(revert, smoke_run, baseline_rows, 
     smoke, _ = read_results(smoke_run[0])
     # the smoke run with this one method replaced by its revert, checked as the whole run is
     planted = reverted_rows[reverted_rows["method"] == revert].assign(method=label)
-    # a revert is a method that answers worse (or is refused by the sanity rules), never one that crashes
-    assert (planted["status"] != "error").all(), planted.loc[planted["status"] == "error", "error"].tolist()
+    # a revert is a method that answers worse (or refuses, or is refused by the sanity rules), never one that crashes
+    assert not _crashes(planted)
     new = pd.concat([smoke[smoke["method"] != label], planted], ignore_index=True)
     checks = compare_frames(new, baseline_rows, axes=["set", "noise"], intervals=False)
     worse = {(c.method, c.config["set"], c.metric) for c in checks if c.regression}
