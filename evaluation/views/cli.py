@@ -36,10 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("new", metavar="NEW_DIR")
     p.add_argument("baseline", metavar="BASELINE_DIR")
-    p.add_argument("--tolerance", type=float, default=0.05, metavar="REL",
-                   help="relative change that counts (default 0.05 = 5%%)")
-    p.add_argument("--alpha", type=float, default=0.05, metavar="P",
-                   help="family-wise false-alarm rate of the checks pooled over seeds (default 0.05)")
+    add_thresholds(p)
     p.add_argument("--json", metavar="OUT.json", help="also write every check and the verdict as JSON")
     p.add_argument("--include-runtime", action="store_true", help="also compare runtime_s")
     p.set_defaults(run=_compare)
@@ -55,11 +52,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("sweep", metavar="SWEEP.yaml")
     p.add_argument("--out", required=True, metavar="BASELINE_DIR", help="the baseline folder (replaced whole)")
     p.add_argument("--reason", metavar="TEXT", help="one line: why the new baseline may be worse than the old")
-    p.add_argument("--tolerance", type=float, default=0.05, metavar="REL", help="as compare (default 0.05)")
-    p.add_argument("--alpha", type=float, default=0.05, metavar="P", help="as compare (default 0.05)")
+    add_thresholds(p)
     add_executor_options(p)
     add_quiet_option(p)
     p.set_defaults(run=_baseline)
+
+
+def add_thresholds(parser: argparse.ArgumentParser) -> None:
+    """``--tolerance REL`` and ``--alpha P`` of a regression check (``compare``, ``baseline``)."""
+    parser.add_argument("--tolerance", type=float, default=0.05, metavar="REL",
+                        help="relative change that counts (default 0.05 = 5%%)")
+    parser.add_argument("--alpha", type=float, default=0.05, metavar="P",
+                        help="family-wise false-alarm rate of the checks pooled over seeds (default 0.05)")
 
 
 def _report(args: argparse.Namespace) -> int:
