@@ -43,7 +43,7 @@ from ..engine.provenance import FILE as PROVENANCE, record
 from ..engine.run import run_sweep
 from ..engine.store import RESULTS, SWEEP_JSON, read_sweep_json
 from ..engine.sweep import load_sweep
-from .compare import Check, check_thresholds, compare_dirs
+from .compare import Check, check_thresholds, compare_dirs, verdict_counts
 from .report import write_report
 
 #: The verdict files written beside a baseline's rows.
@@ -65,8 +65,6 @@ class Regenerated:
 
     Attributes
     ----------
-    folder : Path
-        The baseline folder.
     replaced : bool
         Whether the new run is now the baseline (False: refused, the old one kept).
     checks : list of Check
@@ -75,7 +73,6 @@ class Regenerated:
         The comparison's printed lines (``compare_dirs``), or one line for a first baseline.
     """
 
-    folder: Path
     replaced: bool
     checks: list[Check]
     lines: list[str]
@@ -164,7 +161,7 @@ def regenerate_baseline(
         check_baseline_folder(out)
     sweep = load_sweep(sweep_path)
     command = command or f"nearlight baseline {sweep.source} --out {out}"
-    result = Regenerated(out, False, [], [])
+    result = Regenerated(False, [], [])
 
     def fill(tmp: Path) -> None:
         s = run_sweep(sweep, tmp, workers=workers, scheduler=scheduler, progress=progress, command=command)
@@ -206,7 +203,7 @@ def _entries(folder: Path) -> list[str]:
 
 def _write_verdict(folder: Path, out: Path, result: Regenerated, reason: str | None, command: str) -> None:
     """``verdict.json`` and ``verdict.md`` in ``folder``: the lines that are not ``same``, the summary, the reason."""
-    before = _code_version_of(out) if out.exists() else None
+    before = _code_version_of(out)  # None for a first baseline
     summary = result.lines[-1]
     changed = [c for c in result.checks if c.verdict in ("worse", "missing", "better")]
     doc = {
@@ -216,8 +213,7 @@ def _write_verdict(folder: Path, out: Path, result: Regenerated, reason: str | N
         "code_version": code_version(),
         "replaced_code_version": before,
         "summary": summary,
-        "counts": {v: sum(c.verdict == v for c in result.checks) for v in ("worse", "missing", "better", "same",
-                                                                            "inconclusive")},
+        "counts": verdict_counts(result.checks),
         "reason": reason,
         "changed": [c.line().strip() for c in changed],
     }

@@ -51,6 +51,7 @@ from ...errors import UserError
 from ...files.atomic import write_json
 from ...files.jsonable import jsonable
 from ...files.outputs import check_file_out
+from ..engine import provenance
 from ..engine.environment import differences
 from ..engine.store import read_environments, read_sweep_json, read_results
 from ..scoring.metrics import INFO_COLUMNS, LOBE_COLUMN, METRICS, PER_LAMP_COLUMN
@@ -181,6 +182,11 @@ def _bootstrap_ci(xb: np.ndarray, xn: np.ndarray, level: float, seed: int) -> tu
     return float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
+def verdict_counts(checks: Sequence[Check]) -> dict[str, int]:
+    """How many checks have each verdict, in :data:`VERDICTS` order."""
+    return {v: sum(c.verdict == v for c in checks) for v in VERDICTS}
+
+
 def _with_columns(df: pd.DataFrame, cols: Sequence[str]) -> pd.DataFrame:
     """``df`` with every config column of the baseline, those it lacks empty: rows of another sweep's axes match
     no unit of the baseline, so each of its units is ``missing`` (a verdict) rather than a crash."""
@@ -193,8 +199,9 @@ def unchecked_units(new: pd.DataFrame, base: pd.DataFrame, *, axes: Sequence[str
     methods, which no check covers."""
     cols = _axes(base, axes)
     keys = [*cols, "method"]
-    seen = set(base.groupby(keys, sort=False, dropna=False).groups)
-    return sum(k not in seen for k in _with_columns(new, cols).groupby(keys, sort=False, dropna=False).groups)
+    seen = set(_lean(base, cols, ()).groupby(keys, sort=False, dropna=False).groups)
+    new = _lean(_with_columns(new, cols), cols, ())
+    return sum(k not in seen for k in new.groupby(keys, sort=False, dropna=False).groups)
 
 
 def _lean(df: pd.DataFrame, cols: Sequence[str], metrics: Sequence[str]) -> pd.DataFrame:
@@ -343,8 +350,6 @@ def _stale_baseline(base_dir: Path) -> list[str]:
     what changed and the command that regenerates it. Nothing for a folder
     without a record (results made elsewhere, or before records existed).
     """
-    from ..engine import provenance
-
     if not (base_dir / provenance.FILE).is_file():
         return []
     stale = provenance.stale(base_dir)
@@ -413,7 +418,7 @@ def compare_dirs(
     lines.append("environment: " + ("same as the baseline's" if not diffs else f"{len(diffs)} difference(s)"))
     lines += [f"  {d}" for d in diffs]
     lines += [c.line() for c in checks]
-    counts = {v: sum(c.verdict == v for c in checks) for v in VERDICTS}
+    counts = verdict_counts(checks)
     n_pooled = sum(c.kind == "pooled" for c in checks)
     summary = (
         f"{len(checks)} checks ({n_pooled} pooled over seeds at family-wise alpha "

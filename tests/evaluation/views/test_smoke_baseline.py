@@ -94,6 +94,19 @@ def baseline_rows():
 
 
 @pytest.fixture(scope="session")
+def smoke_rows(smoke_run):
+    return read_results(smoke_run[0])[0]
+
+
+def _planted_checks(smoke: pd.DataFrame, planted: pd.DataFrame, base: pd.DataFrame) -> list:
+    """The smoke run with one method's rows replaced by ``planted`` (already under its name), checked as the whole
+    run is (the Šidák family of every method's checks)."""
+    label = planted["method"].iloc[0]
+    new = pd.concat([smoke[smoke["method"] != label], planted], ignore_index=True)
+    return compare_frames(new, base, axes=["set", "noise"], intervals=False)
+
+
+@pytest.fixture(scope="session")
 def reverted_rows(smoke_run, tmp_path_factory):
     """Every revert's rows and the planted bias's from one run (each under its own name, so one sweep holds all)."""
     methods = [{"name": name, **entry} for name, (_, entry, _) in REVERTS.items()] + [{"name": BIAS, **PLANTED}]
@@ -101,11 +114,11 @@ def reverted_rows(smoke_run, tmp_path_factory):
     return _run(_variant(methods=methods), out, smoke_run[0] / "renders")
 
 
-def test_smoke_sweep_completes_and_reuses_renders(smoke_run):
-    out, s = smoke_run
+def test_smoke_sweep_completes_and_reuses_renders(smoke_run, smoke_rows):
+    s = smoke_run[1]
     # 4 configurations x 6 methods x (noise-free: 1 seed + camera noise: 10 seeds); all re-use the 4 renders
     assert (s.tasks, s.ran, s.rendered, s.reused, s.complete) == (264, 264, 4, 260, True)
-    df, _ = read_results(out)
+    df = smoke_rows
     assert not _crashes(df)
     # `full` on the noise-free one-lamp renders: measured 0.0008-0.022 % of the lamp's distance at 64x48 with
     # 4 spp (the baseline); 0.1 % allows 4 times the worst, still 20 times below what the 2 % bias test plants
@@ -139,29 +152,24 @@ def test_baseline_has_the_verdict_of_its_regeneration():
 
 
 @pytest.mark.parametrize("revert", REVERTS, ids=str)
-def test_revert_of_a_default_is_flagged_worse(revert, smoke_run, baseline_rows, reverted_rows):
+def test_revert_of_a_default_is_flagged_worse(revert, smoke_rows, baseline_rows, reverted_rows):
     label, _, (config, metric) = REVERTS[revert]
-    smoke, _ = read_results(smoke_run[0])
-    # the smoke run with this one method replaced by its revert, checked as the whole run is
     planted = reverted_rows[reverted_rows["method"] == revert].assign(method=label)
     # a revert is a method that answers worse (or refuses, or is refused by the sanity rules), never one that crashes
     assert not _crashes(planted)
-    new = pd.concat([smoke[smoke["method"] != label], planted], ignore_index=True)
-    checks = compare_frames(new, baseline_rows, axes=["set", "noise"], intervals=False)
+    checks = _planted_checks(smoke_rows, planted, baseline_rows)
     worse = {(c.method, c.config["set"], c.metric) for c in checks if c.regression}
     assert (label, config, metric) in worse, "\n".join(c.line() for c in checks if c.method == label)
     assert {m for m, _, _ in worse} == {label}, sorted(worse)  # the other methods are the smoke run's own
 
 
-def test_planted_two_percent_bias_of_full_is_flagged(smoke_run, baseline_rows, reverted_rows):
-    smoke, _ = read_results(smoke_run[0])
+def test_planted_two_percent_bias_of_full_is_flagged(smoke_rows, baseline_rows, reverted_rows):
     planted = reverted_rows[reverted_rows["method"] == BIAS].assign(method="full")
     # every task answered: the verdict is the bias's, not failures' (the failure count is a check of its own)
     keys = ["set", "noise", "seed"]
-    both = planted.merge(smoke[smoke["method"] == "full"], on=keys, suffixes=("", "_full"))
+    both = planted.merge(smoke_rows[smoke_rows["method"] == "full"], on=keys, suffixes=("", "_full"))
     assert len(both) == len(planted) and (both["status"] == both["status_full"]).all()
-    new = pd.concat([smoke[smoke["method"] != "full"], planted], ignore_index=True)
-    checks = compare_frames(new, baseline_rows, axes=["set", "noise"], intervals=False)
+    checks = _planted_checks(smoke_rows, planted, baseline_rows)
     flagged = {(c.method, c.kind) for c in checks if c.regression}
     # both kinds of unit catch it: noise-free by value, noisy pooled over the seeds; the other methods are untouched
     assert flagged == {("full", "exact"), ("full", "pooled")}, "\n".join(c.line() for c in checks if c.regression)
