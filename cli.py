@@ -79,11 +79,21 @@ def _sigterm_unwinds() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+def _check_render_settings() -> None:
+    """The renderer's environment variables, checked before any verb does work (a UserError names the bad one)."""
+    from .generator.jit_target import planned_target
+    from .generator.llvm import planned_variant
+
+    planned_variant()
+    planned_target()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``nearlight`` command; returns the exit status."""
     args = build_parser().parse_args(argv)
     try:
         with _sigterm_unwinds():
+            _check_render_settings()
             return int(args.run(args) or 0)
     except MissingExtra as exc:
         print(f"nearlight {args.verb}: {exc}", file=sys.stderr)

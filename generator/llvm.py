@@ -14,7 +14,8 @@ with:
   are traced one by one in Python.
 
 ``NEARLIGHT_MITSUBA_VARIANT`` (one of the two names) forces a variant, e.g. to
-check the fallback on a machine that has LLVM.
+check the fallback on a machine that has LLVM. The LLVM variant compiles for
+one portable target on every x86-64-v3 CPU (:mod:`nearlight.generator.jit_target`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from functools import cache
 from types import ModuleType
 
 from ..errors import UserError, require_extra
+from . import jit_target
 
 LLVM_VARIANT = "llvm_ad_mono_polarized"
 SCALAR_VARIANT = "scalar_spectral_polarized"
@@ -106,6 +108,8 @@ def mitsuba() -> ModuleType:
             stacklevel=2,
         )
     mi.set_variant(variant)
+    if variant == LLVM_VARIANT:
+        jit_target.apply(mi)
     from . import bsdfs, lamp
 
     bsdfs.register(mi)

@@ -803,3 +803,14 @@ def test_a_plugin_that_kills_its_worker_under_gsa_is_one_line(tmp_path, faulty, 
     path = _write(tmp_path / "gsa.yaml", _dump(doc))
     assert main(["gsa", str(path), "--out", str(tmp_path / "res"), "--quiet", "--workers", "2"]) == 2
     _one_error_line(capsys, f"{faulty}:dies", "a worker process died")
+
+
+@pytest.mark.parametrize("verb", [["reproduce", "--quick", "--quiet"], ["suite", "build", "SUITE", "--quiet"]])
+def test_a_bad_llvm_target_choice_is_one_line_before_any_work(verb, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("NEARLIGHT_JIT_TARGET", "avx512")
+    suite = _pinned(tmp_path, SUITE)
+    out = tmp_path / "out"
+    argv = [str(suite) if a == "SUITE" else a for a in verb] + ["--out", str(out)]
+    assert main(argv) == 2
+    _one_error_line(capsys, "NEARLIGHT_JIT_TARGET: expected portable or host, got 'avx512'")
+    assert not out.exists()

@@ -78,11 +78,16 @@ def collect() -> dict[str, Any]:
         ``code_version`` (package version and git commit), ``python``,
         ``platform``, ``cpu`` (model name), ``cpu_flags`` (those of
         :data:`CPU_FLAGS` present), ``mitsuba_variant`` (what the generator
-        will render with), ``packages`` (name -> version, None when absent).
+        will render with), ``jit_target`` (the LLVM target its kernels are
+        compiled for, :func:`nearlight.generator.jit_target.planned_target`;
+        absent for the scalar variant), ``packages`` (name -> version, None
+        when absent).
     """
-    from ...generator.llvm import planned_variant
+    from ...generator.jit_target import planned_target
+    from ...generator.llvm import LLVM_VARIANT, planned_variant
 
     model, flags = _cpu()
+    variant = planned_variant()[0]
     packages: dict[str, str | None] = {}
     for name in PACKAGES:
         try:
@@ -95,7 +100,8 @@ def collect() -> dict[str, Any]:
         "platform": f"{platform.system()} {platform.machine()}",
         "cpu": model,
         "cpu_flags": flags,
-        "mitsuba_variant": planned_variant()[0],
+        "mitsuba_variant": variant,
+        **({"jit_target": planned_target()} if variant == LLVM_VARIANT else {}),
         "packages": packages,
     }
 

@@ -271,7 +271,7 @@ renders by nearlight {doc.get('code_version', doc['nearlight_version'])}{where}.
 experiment is a sweep file of `sweeps/paper/` run by the sweep engine; every number below is
 read from its result rows (see `paper_reproduction.json`, which also records the
 environment; each results folder has its `environment.json`); the paper's numbers are
-quoted with their section. {tolerance_text()}
+quoted with their section. {tolerance_text(doc)}
 """
     return "\n".join([
         head,

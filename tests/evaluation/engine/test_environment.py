@@ -32,7 +32,7 @@ def test_installed_versions_are_the_pinned_ones():
 
 def test_environment_record_and_differences():
     env = collect()
-    assert set(env) == {"code_version", "python", "platform", "cpu", "cpu_flags", "mitsuba_variant", "packages"}
+    assert set(env) == {"code_version", "python", "platform", "cpu", "cpu_flags", "mitsuba_variant", "jit_target", "packages"}
     assert env["packages"]["numpy"] == version("numpy") and env["cpu"]
     assert differences(env, env) == []
     other = {**env, "cpu": "another CPU", "packages": {**env["packages"], "numpy": "0.0"}}

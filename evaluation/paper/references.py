@@ -1,0 +1,131 @@
+"""Reproductions kept from other CPUs, each for as long as the code behind its tables is unchanged.
+
+A run on one machine cannot show that its numbers hold on the next one; a run
+from another machine, kept, can. ``reports/references/<name>/`` holds one
+``paper_reproduction.json`` made elsewhere (or with another LLVM target) and
+its ``reference.json``: where it was rendered (CPU, flags, target), the
+commit that made it, and per table the :func:`fingerprint` of the code and
+inputs that table's numbers depend on. A table of a reference is *applicable*
+while today's fingerprint is the one recorded; regenerating the committed
+reports on one machine does not touch the references, so another machine's
+evidence stays until the code behind it changes. ``tests/evaluation/paper/
+test_references.py`` compares this machine's run with every applicable table,
+within the tolerance classes of :mod:`nearlight.evaluation.paper.check`.
+
+What a table depends on (:data:`ENTRIES`): the estimator, the generator, the
+scoring and the first-stage study's analytic code (their static import
+closures, hashed as code tokens like ``provenance.json``), the sweep file and
+scene of the table, and the versions of the packages that compute its numbers
+(:data:`PACKAGES`). Left out: the two modules that choose the renderer's
+variant and LLVM target (:data:`NOT_CODE`): what they chose is recorded in
+the environment and is exactly what the classes judge. The estimator
+package's ``__init__`` imports every method, so a change to any method
+retires every reference; a narrower closure would keep them longer.
+
+``python scripts/keep_reference.py RUN_DIR NAME --tables ...`` keeps a run
+(``reports/references/README.md`` lists the references and the CPUs each has
+been checked on).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Iterable, Mapping
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+from ...errors import UserError
+from ...files.atomic import write_json
+from ...files.digests import file_sha256
+from ..engine.environment import PACKAGE_ROOT
+from ..engine.provenance import _rel, code_hash, dependencies
+from ..engine.run import sweep_inputs
+
+#: Where references are kept.
+FOLDER = PACKAGE_ROOT / "reports" / "references"
+#: The record beside a reference's ``paper_reproduction.json``.
+RECORD = "reference.json"
+#: Modules whose import closure a table's numbers depend on.
+ENTRIES = ("nearlight.estimator", "nearlight.generator", "nearlight.evaluation.scoring.metrics",
+           "nearlight.evaluation.scoring.matching", "nearlight.evaluation.paper.fidelity")
+#: Files of that closure that choose the renderer, not a number: their choice is in the environment.
+NOT_CODE = ("generator/llvm.py", "generator/jit_target.py")
+#: Packages whose version changes a table's numbers.
+PACKAGES = ("mitsuba", "drjit", "numpy", "scipy")
+
+
+def _code() -> dict[str, str]:
+    return {_rel(p): code_hash(p) for p in dependencies(ENTRIES) if _rel(p) not in NOT_CODE}
+
+
+def fingerprints(*, quick: bool) -> dict[str, str]:
+    """``{table: sha256}`` of what each table of the reproduction (profile ``quick``) depends on, today."""
+    from .reproduce import load_sweeps
+
+    code = _code()
+    packages = {}
+    for name in PACKAGES:
+        try:
+            packages[name] = version(name)
+        except PackageNotFoundError:
+            packages[name] = None
+    out = {}
+    for table, sweep in load_sweeps(quick=quick).items():
+        inputs = {_rel(p): file_sha256(p) for p in sweep_inputs(sweep)}
+        doc = {"code": code, "inputs": inputs, "packages": packages}
+        out[table] = hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
+    return out
+
+
+def keep(run: Path, name: str, tables: Iterable[str], *, note: str, folder: Path = FOLDER) -> Path:
+    """Keep the reproduction of ``run`` as reference ``name`` for ``tables`` (their fingerprints today).
+
+    Raises
+    ------
+    UserError
+        ``run`` has no reproduction document, a table is not in it, or ``name`` is taken.
+    """
+    doc_path = Path(run) / "paper_reproduction.json"
+    try:
+        doc = json.loads(doc_path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise UserError(f"{doc_path}: cannot read a reproduction document ({exc})") from None
+    quick = doc["profile"]["name"] == "quick"
+    now = fingerprints(quick=quick)
+    tables = list(tables)
+    missing = [t for t in tables if t not in doc["experiments"] or t not in now]
+    if missing:
+        raise UserError(f"--tables: {', '.join(missing)} not in {doc_path} (it has {', '.join(doc['experiments'])})")
+    target = folder / name
+    if target.exists():
+        raise UserError(f"{target}: a reference of that name exists (references are kept, not replaced)")
+    target.mkdir(parents=True)
+    (target / "paper_reproduction.json").write_bytes(doc_path.read_bytes())
+    env = doc.get("environment") or {}
+    return write_json(target / RECORD, {
+        "profile": doc["profile"]["name"],
+        "made_by": doc.get("code_version"),
+        "cpu": env.get("cpu"), "cpu_flags": env.get("cpu_flags"), "jit_target": env.get("jit_target", "host"),
+        "tables": {t: now[t] for t in tables},
+        "note": note,
+    }, what="the reference record")
+
+
+def references(profile: str, folder: Path = FOLDER) -> list[tuple[str, dict[str, Any], list[str], list[str]]]:
+    """Every kept reference of ``profile``: ``(name, document, applicable tables, retired tables)``.
+
+    A table is retired when the code or inputs it depends on changed since it was kept
+    (its :func:`fingerprints` differ).
+    """
+    now = fingerprints(quick=profile == "quick")
+    out = []
+    for record_path in sorted(folder.glob(f"*/{RECORD}")):
+        record: Mapping[str, Any] = json.loads(record_path.read_text(encoding="utf-8"))
+        if record["profile"] != profile:
+            continue
+        doc = json.loads((record_path.parent / "paper_reproduction.json").read_text(encoding="utf-8"))
+        live = [t for t, h in record["tables"].items() if now.get(t) == h]
+        out.append((record_path.parent.name, doc, live, [t for t in record["tables"] if t not in live]))
+    return out
