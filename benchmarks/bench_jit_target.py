@@ -1,28 +1,23 @@
-"""Benchmark: do renders change with Dr.Jit's LLVM target, and is a forced target deterministic?
+"""Benchmark: what the portable LLVM target changes in a render, what it costs, and whether it is deterministic.
 
-Dr.Jit compiles every kernel for the CPU it runs on (target CPU, features,
-vector width), so two CPUs emit different code and the renders differ in
-their last bits. drjit 1.5's Python module does not wrap
-``jit_llvm_set_target``, but ``libdrjit-core.so`` exports it (C++ names
-``jit_llvm_set_target(const char*, const char*, uint32_t)`` and the three
-getters), so ctypes can force one target. This script renders
-``scenes/ts_board.yaml`` at 160×120 in fresh processes (a target applies to
-kernels compiled after it is set): with the target left alone, and twice
-forced to ``x86-64-v3`` / ``+avx2,+fma`` / 8 lanes, a target every x86-64
-CPU of the last decade runs. It prints each run's target and stack hash,
-how many values the forced target changes (and by how many ulp), and whether
-two forced runs agree bit for bit.
+Renders ``scenes/ts_board.yaml`` at its full 640×480 (8 analyzer angles) in
+fresh processes (a target applies to the kernels of the process that sets
+it): with the portable target (:mod:`nearlight.generator.jit_target`, the
+default) twice, and with ``NEARLIGHT_JIT_TARGET=host``. Each process renders
+``REPEATS`` times (Dr.Jit's kernel cache warm after the first) and reports
+its fastest. Prints each run's target, stack hash and time; how many values
+the portable target changes against the host's (and by how many ulp); the
+time ratio portable / host; whether two portable processes agree bit for bit.
 
-What it cannot show on one machine: that the forced target gives the same
-bits on another CPU (Embree, which Mitsuba's ray tests use, picks its own
-instruction set at run time as well). Printed, not asserted.
+On one machine it cannot show that the portable target gives the same bits
+on another CPU: the committed references (``reports/references/``) and
+``tests/evaluation/paper/test_references.py`` check that on every machine.
 
     .venv/bin/python benchmarks/bench_jit_target.py
 """
 
 from __future__ import annotations
 
-import ctypes
 import hashlib
 import os
 import subprocess
@@ -35,56 +30,56 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenes" / "ts_board.yaml"
-FORCED = (b"x86-64-v3", b"+avx2,+fma", 8)
-# libdrjit-core's C++ entry points (the Python module does not wrap them)
-SET_TARGET = "_Z19jit_llvm_set_targetPKcS0_j"
-GETTERS = ("_Z19jit_llvm_target_cpuv", "_Z24jit_llvm_target_featuresv", "_Z21jit_llvm_vector_widthv")
+REPEATS = 5
 
 
-def _render(mode: str, out: str) -> None:
-    """In this process: force the target (``mode == "forced"``), render, save the stack to ``out``."""
-    import drjit
-    import mitsuba as mi
+def _render(out: str) -> None:
+    """In this process: render ``REPEATS`` times, save the stack to ``out``, print target, hash, fastest time."""
+    from nearlight.generator import jit_target, load_scene, render_clean
+    from nearlight.generator.llvm import mitsuba
 
-    from nearlight.generator import load_scene, render_clean
-
-    core = ctypes.CDLL(os.path.join(os.path.dirname(drjit.__file__), "libdrjit-core.so"))
-    cpu, features, width = (getattr(core, name) for name in GETTERS)
-    cpu.restype = features.restype = ctypes.c_char_p
-    width.restype = ctypes.c_uint32
-    mi.set_variant("llvm_ad_mono_polarized")
-    drjit.eval(drjit.llvm.Float(1.0))  # the LLVM backend is initialised: a target set now stays
-    if mode == "forced":
-        setter = getattr(core, SET_TARGET)
-        setter.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32]
-        setter(*FORCED)
-    scene = load_scene(SCENE, overrides={"camera.resolution": [160, 120]})
-    t = time.perf_counter()
-    stack = np.asarray(render_clean(scene, progress=False).stack)
-    seconds = time.perf_counter() - t
+    mitsuba()
+    scene = load_scene(SCENE)
+    times = []
+    for _ in range(REPEATS):
+        t = time.perf_counter()
+        stack = np.asarray(render_clean(scene, progress=False).stack)
+        times.append(time.perf_counter() - t)
     np.save(out, stack)
-    print(f"{mode:8s} target {cpu().decode()}, {width()} lanes, features {features().decode()[:40]}...; "
-          f"render {seconds:.2f} s (with Dr.Jit's kernel cache); stack sha256 "
-          f"{hashlib.sha256(stack.tobytes()).hexdigest()[:16]}")
+    target = jit_target.current()
+    print(f"{os.environ.get(jit_target.ENV) or 'portable':8s} target {target[:40]}{'...' if len(target) > 40 else ''}; "
+          f"fastest of {REPEATS} renders {min(times):.3f} s; stack sha256 "
+          f"{hashlib.sha256(stack.tobytes()).hexdigest()[:16]}", flush=True)
+    print(f"seconds {min(times)!r}", flush=True)
+
+
+def _run(mode: str, out: str) -> float:
+    env = {**os.environ, "NEARLIGHT_JIT_TARGET": mode}
+    done = subprocess.run([sys.executable, __file__, out], env=env, check=True, capture_output=True, text=True)
+    lines = done.stdout.splitlines()
+    print(lines[0])
+    return float(lines[1].split()[1])
 
 
 def main() -> None:
-    if len(sys.argv) == 3:
-        _render(sys.argv[1], sys.argv[2])
+    if len(sys.argv) == 2:
+        _render(sys.argv[1])
         return
     with tempfile.TemporaryDirectory() as tmp:
-        stacks = {}
-        for run in ("default", "forced", "forced again"):
+        seconds, stacks = {}, {}
+        for run in ("host", "portable", "portable again"):
             out = os.path.join(tmp, run.replace(" ", "_") + ".npy")
-            subprocess.run([sys.executable, __file__, run.split()[0], out], check=True)
+            seconds[run] = _run(run.split()[0], out)
             stacks[run] = np.load(out)
-    a, b, c = stacks["default"], stacks["forced"], stacks["forced again"]
+    a, b, c = stacks["host"], stacks["portable"], stacks["portable again"]
     ulp = np.abs(a.astype(np.float64) - b) / np.spacing(np.maximum(np.abs(a), np.finfo(np.float32).tiny))
     lit = np.abs(a) > 0
-    print(f"default vs forced: {int((a != b).sum())} of {a.size} values differ "
+    print(f"host vs portable: {int((a != b).sum())} of {a.size} values differ "
           f"({100 * float((a != b).mean()):.1f} %), at most {float(ulp.max()):.0f} ulp, "
           f"{float((np.abs(a - b)[lit] / np.abs(a[lit])).max()):.2g} relative")
-    print(f"forced vs forced again (two processes): {int((b != c).sum())} values differ")
+    print(f"portable vs portable again (two processes): {int((b != c).sum())} values differ")
+    print(f"render time portable / host: {seconds['portable'] / seconds['host']:.2f} "
+          f"({seconds['portable']:.3f} s / {seconds['host']:.3f} s, fastest of {REPEATS})")
 
 
 if __name__ == "__main__":

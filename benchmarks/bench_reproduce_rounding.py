@@ -50,7 +50,7 @@ def main() -> None:
 
     import nearlight.generator as generator
     from nearlight.evaluation.paper.reproduce import reproduce
-    from nearlight.evaluation.paper.check import RELATIVE, TOLERANCES, check, rows
+    from nearlight.evaluation.paper.check import check, rows, tolerance
 
     docs = []
     original = generator.render_clean
@@ -65,12 +65,11 @@ def main() -> None:
     lines, misses = check(docs[1], docs[0])
     print("\n".join(lines))
     worst: dict[str, float] = {}
-    ref = {(e, r, m): v for e, r, m, v in rows(docs[0])}
-    for e, r, m, v in rows(docs[1]):
-        base = ref.get((e, r, m))
-        if v is not None and base is not None:
-            allowed = max(TOLERANCES[m], RELATIVE * abs(base))
-            worst[m] = max(worst.get(m, 0.0), abs(v - base) / allowed)
+    ref = {(n.table, n.row, n.metric): n.value for n in rows(docs[0])}
+    for n in rows(docs[1]):
+        base = ref.get((n.table, n.row, n.metric))
+        if n.value is not None and base is not None:
+            worst[n.metric] = max(worst.get(n.metric, 0.0), abs(n.value - base) / max(tolerance(n.metric, base), 1e-12))
     print("largest difference / allowed, per metric: " + ", ".join(f"{m} {f:.3g}" for m, f in worst.items()))
     print(f"{misses} number(s) outside the stated tolerance")
 
