@@ -535,6 +535,18 @@ def _reference_cases() -> None:
         (folder / "ref").mkdir()
         return argv(folder), "paper_reproduction.json"
 
+    # a kept reference (reports/references/): its record damaged, or every table retired
+    records = {"not-json": b"{", "array": b"[]", "no-tables": json.dumps({"profile": "quick"}).encode(),
+               "tables-list": json.dumps({"profile": "quick", "tables": ["board"]}).encode(),
+               "retired": json.dumps({"profile": "quick", "tables": {"board": "0" * 64}}).encode()}
+    for name, data in records.items():
+        @case(f"reference-record-{name}")
+        def build(folder, assets, data=data, name=name):
+            _write(folder / "ref" / "paper_reproduction.json", json.dumps(base))
+            _write(folder / "ref" / "reference.json", data)
+            return argv(folder), ("every table of this kept reference is retired" if name == "retired"
+                                  else "reference.json: not a reference record")
+
 
 _reference_cases()
 

@@ -102,7 +102,7 @@ def test_packages_are_folders_under_the_root():
     listed = {ROOT.joinpath(*p.split(".")[1:]) for p in PYPROJECT["packages"]}
     for folder in ROOT.iterdir():
         if folder.is_dir() and not folder.name.startswith(".") and any(folder.glob("*.py")):
-            assert folder in listed or folder.name in ("tests", "benchmarks"), folder
+            assert folder in listed or folder.name in ("tests", "benchmarks", "scripts"), folder  # scripts: maintainers' tools
 
 
 @pytest.mark.parametrize("name", sorted(n for n in MODULES if n != "nearlight.__main__"))

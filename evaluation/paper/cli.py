@@ -36,9 +36,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(run=_run)
 
 
-def _reference(folder: str, profile: str) -> dict:
-    """The reference document of ``--against``, checked before any work."""
-    return read_reference(Path(folder) / "paper_reproduction.json", profile)
+def _reference(folder: str, profile: str) -> tuple[dict, list[str] | None, list[str]]:
+    """The reference document of ``--against``, checked before any work, and which of its tables to compare.
+
+    A reference kept in ``reports/references/`` (a ``reference.json`` beside it) is compared on the
+    tables whose code is today's only (:mod:`nearlight.evaluation.paper.references`); the retired
+    ones are named. Any other folder: every table.
+    """
+    from .references import RECORD, references
+
+    doc = read_reference(Path(folder) / "paper_reproduction.json", profile)
+    if not (Path(folder) / RECORD).is_file():
+        return doc, None, []
+    (_, _, live, retired), = references(profile, folder=Path(folder).parent, names=[Path(folder).name])
+    if not live:
+        raise UserError(f"--against {folder}: every table of this kept reference is retired (their code changed "
+                        f"since it was kept: {', '.join(retired)}); nothing to compare")
+    return doc, live, retired
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -48,7 +62,7 @@ def _run(args: argparse.Namespace) -> int:
     require_extra("render")
     if args.workers < 1:
         raise UserError(f"--workers: expected a positive integer, got {args.workers}")
-    ref = _reference(args.against, QUICK if args.quick else FULL) if args.against else None
+    ref, tables, retired = _reference(args.against, QUICK if args.quick else FULL) if args.against else (None, None, [])
     md = reproduce(args.out, quick=args.quick, workers=args.workers, progress=not args.quiet,
                    cache_dir=results_cache(args))
     print(md)
@@ -58,8 +72,10 @@ def _run(args: argparse.Namespace) -> int:
         print(f"nearlight: failed task: {line}", file=sys.stderr)
     if ref is None:
         return 1 if failed else 0
-    lines, misses = check(doc, ref)
+    lines, misses = check(doc, ref, tables=tables)
     print(f"against {args.against} (made by {ref.get('code_version', ref.get('nearlight_version'))}):")
+    if retired:
+        print(f"  not compared: {', '.join(retired)} (kept reference; their code changed since it was kept)")
     for line in lines:
         print(f"  {line}")
     return 1 if misses or failed else 0

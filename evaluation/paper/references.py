@@ -12,15 +12,8 @@ evidence stays until the code behind it changes. ``tests/evaluation/paper/
 test_references.py`` compares this machine's run with every applicable table,
 within the tolerance classes of :mod:`nearlight.evaluation.paper.check`.
 
-What a table depends on (:data:`ENTRIES`): the estimator, the generator, the
-scoring and the first-stage study's analytic code (their static import
-closures, hashed as code tokens like ``provenance.json``), the sweep file and
-scene of the table, and the versions of the packages that compute its numbers
-(:data:`PACKAGES`). Left out: the two modules that choose the renderer's
-variant and LLVM target (:data:`NOT_CODE`): what they chose is recorded in
-the environment and is exactly what the classes judge. The estimator
-package's ``__init__`` imports every method, so a change to any method
-retires every reference; a narrower closure would keep them longer.
+What a table depends on is its sweep file and scene with the code and
+packages that compute its numbers (:func:`nearlight.evaluation.engine.fingerprint.fingerprint`).
 
 ``python scripts/keep_reference.py RUN_DIR NAME --tables ...`` keeps a run
 (``reports/references/README.md`` lists the references and the CPUs each has
@@ -29,54 +22,27 @@ been checked on).
 
 from __future__ import annotations
 
-import hashlib
 import json
 from collections.abc import Iterable, Mapping
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from ...errors import UserError
+from ...errors import UserError, one_line
 from ...files.atomic import write_json
-from ...files.digests import file_sha256
-from ..engine.environment import PACKAGE_ROOT
-from ..engine.provenance import _rel, code_hash, dependencies
+from ..engine.fingerprint import REFERENCES, fingerprint
 from ..engine.run import sweep_inputs
 
-#: Where references are kept.
-FOLDER = PACKAGE_ROOT / "reports" / "references"
+#: Where reproductions are kept.
+FOLDER = REFERENCES
 #: The record beside a reference's ``paper_reproduction.json``.
 RECORD = "reference.json"
-#: Modules whose import closure a table's numbers depend on.
-ENTRIES = ("nearlight.estimator", "nearlight.generator", "nearlight.evaluation.scoring.metrics",
-           "nearlight.evaluation.scoring.matching", "nearlight.evaluation.paper.fidelity")
-#: Files of that closure that choose the renderer, not a number: their choice is in the environment.
-NOT_CODE = ("generator/llvm.py", "generator/jit_target.py")
-#: Packages whose version changes a table's numbers.
-PACKAGES = ("mitsuba", "drjit", "numpy", "scipy")
-
-
-def _code() -> dict[str, str]:
-    return {_rel(p): code_hash(p) for p in dependencies(ENTRIES) if _rel(p) not in NOT_CODE}
 
 
 def fingerprints(*, quick: bool) -> dict[str, str]:
     """``{table: sha256}`` of what each table of the reproduction (profile ``quick``) depends on, today."""
     from .reproduce import load_sweeps
 
-    code = _code()
-    packages = {}
-    for name in PACKAGES:
-        try:
-            packages[name] = version(name)
-        except PackageNotFoundError:
-            packages[name] = None
-    out = {}
-    for table, sweep in load_sweeps(quick=quick).items():
-        inputs = {_rel(p): file_sha256(p) for p in sweep_inputs(sweep)}
-        doc = {"code": code, "inputs": inputs, "packages": packages}
-        out[table] = hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
-    return out
+    return {table: fingerprint(sweep_inputs(sweep)) for table, sweep in load_sweeps(quick=quick).items()}
 
 
 def keep(run: Path, name: str, tables: Iterable[str], *, note: str, folder: Path = FOLDER) -> Path:
@@ -113,8 +79,9 @@ def keep(run: Path, name: str, tables: Iterable[str], *, note: str, folder: Path
     }, what="the reference record")
 
 
-def references(profile: str, folder: Path = FOLDER) -> list[tuple[str, dict[str, Any], list[str], list[str]]]:
-    """Every kept reference of ``profile``: ``(name, document, applicable tables, retired tables)``.
+def references(profile: str, folder: Path = FOLDER, names: Iterable[str] | None = None
+               ) -> list[tuple[str, dict[str, Any], list[str], list[str]]]:
+    """Every kept reference of ``profile`` (or those of ``names``): ``(name, document, applicable, retired)``.
 
     A table is retired when the code or inputs it depends on changed since it was kept
     (its :func:`fingerprints` differ).
@@ -122,10 +89,16 @@ def references(profile: str, folder: Path = FOLDER) -> list[tuple[str, dict[str,
     now = fingerprints(quick=profile == "quick")
     out = []
     for record_path in sorted(folder.glob(f"*/{RECORD}")):
-        record: Mapping[str, Any] = json.loads(record_path.read_text(encoding="utf-8"))
-        if record["profile"] != profile:
+        if names is not None and record_path.parent.name not in names:
             continue
-        doc = json.loads((record_path.parent / "paper_reproduction.json").read_text(encoding="utf-8"))
-        live = [t for t, h in record["tables"].items() if now.get(t) == h]
+        try:
+            record: Mapping[str, Any] = json.loads(record_path.read_text(encoding="utf-8"))
+            if record["profile"] != profile:
+                continue
+            doc = json.loads((record_path.parent / "paper_reproduction.json").read_text(encoding="utf-8"))
+            live = [t for t, h in dict(record["tables"]).items() if now.get(t) == h]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise UserError(f"{record_path}: not a reference record of nearlight's ({one_line(exc)[:80]}); "
+                            "expected profile and tables") from None
         out.append((record_path.parent.name, doc, live, [t for t in record["tables"] if t not in live]))
     return out

@@ -108,9 +108,9 @@ def test_a_table_whose_code_changed_is_retired(tmp_path, quick_report):
 
 
 @pytest.mark.parametrize("args, says", [
-    (["{tmp}/none", "x", "--tables", "board", "--note", "n"], "cannot read a reproduction document"),
-    (["{run}", "x", "--tables", "nope", "--note", "n"], "--tables: nope not in"),
-    (["{run}", "taken", "--tables", "board", "--note", "n"], "a reference of that name exists"),
+    (["reproduction", "{tmp}/none", "x", "--tables", "board", "--note", "n"], "cannot read a reproduction document"),
+    (["reproduction", "{run}", "x", "--tables", "nope", "--note", "n"], "--tables: nope not in"),
+    (["reproduction", "{run}", "taken", "--tables", "board", "--note", "n"], "a reference of that name exists"),
 ])
 def test_keep_reference_refuses_bad_input_in_one_line(tmp_path, quick_report, args, says, monkeypatch, capsys):
     out, _ = quick_report
@@ -121,7 +121,8 @@ def test_keep_reference_refuses_bad_input_in_one_line(tmp_path, quick_report, ar
         import keep_reference
     finally:
         sys.path.pop(0)
-    monkeypatch.setattr(keep_reference, "keep", lambda *a, **k: refs.keep(*a, **k, folder=tmp_path))
+    original = refs.keep
+    monkeypatch.setattr(refs, "keep", lambda *a, **k: original(*a, **{**k, "folder": tmp_path}))
     argv = [a.format(tmp=tmp_path, run=out) for a in args]
     assert keep_reference.main(argv) == 2
     err = capsys.readouterr().err
@@ -129,6 +130,6 @@ def test_keep_reference_refuses_bad_input_in_one_line(tmp_path, quick_report, ar
 
 
 def test_keep_reference_script_runs(tmp_path):
-    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "keep_reference.py"), str(tmp_path), "x",
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "keep_reference.py"), "reproduction", str(tmp_path), "x",
                            "--tables", "board", "--note", "n"], capture_output=True, text=True)
     assert done.returncode == 2 and done.stderr.count("\n") == 1 and "cannot read" in done.stderr
