@@ -182,6 +182,12 @@ def _bootstrap_ci(xb: np.ndarray, xn: np.ndarray, level: float, seed: int) -> tu
     return float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
+def sidak_level(alpha: float, m: int) -> float:
+    """Per-check level ``1 − (1 − alpha)^(1/m)`` that keeps the chance of any false alarm over ``m``
+    independent checks at ``alpha`` (Šidák)."""
+    return 1.0 - (1.0 - alpha) ** (1.0 / max(m, 1))
+
+
 def verdict_counts(checks: Sequence[Check]) -> dict[str, int]:
     """How many checks have each verdict, in :data:`VERDICTS` order."""
     return {v: sum(c.verdict == v for c in checks) for v in VERDICTS}
@@ -270,7 +276,7 @@ def compare_frames(
 
     pooled = [u for u in units if u[3] is not None and _is_noisy(u[2], u[3])]
     m = sum(1 + sum(_finite(b[x]).size > 0 for x in metrics if x in b) for _, _, b, _ in pooled)
-    level = 1.0 - (1.0 - alpha) ** (1.0 / max(m, 1))  # Šidák: per-check level for a family-wise alpha
+    level = sidak_level(alpha, m)
     checks: list[Check] = []
     for i, (config, method, b, n) in enumerate(units):
         if n is None:
