@@ -8,7 +8,9 @@ from the highlight. Run through a sweep under the built-in's own name (a
 method entry ``{method: "nearlight.evaluation.planted:further_along_ray", name:
 full, options: {base: full}}``), ``nearlight compare`` against a baseline of the real method must
 flag it; ``benchmarks/bench_compare.py`` measures the smallest such bias it
-catches.
+catches. :func:`further_along_ray_every` does the same on every few seeds only (a
+quarter of the cases of a suite with seeds 0 to 4k − 1, by default): a regression
+of some cases, which a scorecard comparison must catch.
 """
 
 from __future__ import annotations
@@ -45,6 +47,38 @@ def further_along_ray(capture: Capture, *, base: str = "full", fraction: float =
         when the capture has no normals).
     """
     return moved_along_ray(capture, estimate(capture, method=base, **options), fraction)
+
+
+def further_along_ray_every(capture: Capture, *, every: int = 4, base: str = "full", fraction: float = 0.02,
+                            **options: Any) -> Estimate:  # fmt: skip
+    """:func:`further_along_ray` on the captures whose camera-noise seed is a multiple of ``every``; method
+    ``base`` unchanged on the others.
+
+    The seed is the one the capture records with its camera noise (``meta["noise"]["camera"]["seed"]``,
+    written by :func:`nearlight.generator.noise.add_camera_noise`), so the same cases are moved in every
+    run, and on a suite whose noisy configurations have the seeds 0 to ``every·k − 1`` exactly one in
+    ``every`` of them.
+
+    Parameters
+    ----------
+    capture : Capture
+        A capture with camera noise (one without has no seed to select by: ``ValueError``).
+    every : int
+        One seed in ``every`` is moved (≥ 1).
+    base, fraction, **options
+        As :func:`further_along_ray`.
+
+    Returns
+    -------
+    Estimate
+    """
+    seed = capture.meta.get("noise", {}).get("camera", {}).get("seed")
+    if seed is None:
+        raise ValueError("further_along_ray_every: the capture records no camera-noise seed to select it by")
+    if not (isinstance(every, int) and every >= 1):
+        raise ValueError(f"further_along_ray_every: every: expected an integer >= 1, got {every!r}")
+    est = estimate(capture, method=base, **options)
+    return moved_along_ray(capture, est, fraction) if int(seed) % every == 0 else est
 
 
 def moved_along_ray(capture: Capture, est: Estimate, fraction: float) -> Estimate:

@@ -28,11 +28,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = subparsers.add_parser(
         "compare",
-        help="regression check of a sweep's results against a baseline",
+        help="regression check of a sweep's results (or a scorecard) against a baseline",
         description="Compare every method x metric x configuration of NEW_DIR with BASELINE_DIR: noise-free "
         "configurations value against value, noisy ones pooled over their seeds (Mann-Whitney U, Sidak-corrected "
-        "to a family-wise ALPHA). Prints each check (baseline, new value, change with its interval, verdict) "
-        "and what differs between the two environments; exit 1 if anything got worse, 0 if not.",
+        "to a family-wise ALPHA); two scorecards (`nearlight score` folders) with their cases paired, over all "
+        "cases and per category value (Wilcoxon signed-rank; failures: McNemar). Prints each check (baseline, "
+        "new value, change with its interval, verdict) and what differs between the two environments; exit 1 "
+        "if anything got worse, 0 if not.",
     )
     p.add_argument("new", metavar="NEW_DIR")
     p.add_argument("baseline", metavar="BASELINE_DIR")
@@ -63,7 +65,8 @@ def add_thresholds(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tolerance", type=float, default=0.05, metavar="REL",
                         help="relative change that counts (default 0.05 = 5%%)")
     parser.add_argument("--alpha", type=float, default=0.05, metavar="P",
-                        help="family-wise false-alarm rate of the checks pooled over seeds (default 0.05)")
+                        help="family-wise false-alarm rate of the checks pooled over seeds, or paired over a "
+                        "scorecard's cases (default 0.05)")
 
 
 def _report(args: argparse.Namespace) -> int:

@@ -1,8 +1,9 @@
-"""Regression verdicts: did a method get worse than in a baseline run of the same sweep?
+"""Regression verdicts: did a method get worse than in a baseline run of the same sweep or suite?
 
-Rows are grouped by *check unit*: the configuration (the sweep's axis columns)
-and the method label. Seeds are not matched, so a re-run with other seeds, or
-on another machine, compares like with like. Each unit is one of two kinds:
+Rows of a sweep are grouped by *check unit*: the configuration (the sweep's axis
+columns) and the method label. Seeds are not matched, so a re-run with other
+seeds, or on another machine, compares like with like. Each unit is one of two
+kinds:
 
 ``exact`` (no camera or range noise: the numbers do not depend on the seed)
     compared value against value. Worse when ``new > base + tolerance·|base|
@@ -31,8 +32,36 @@ failed; pooled units: Fisher's exact test on the failure counts, in the same
 Šidák family). A unit of the baseline with no rows in the new results is a
 regression (``missing``).
 
-:func:`compare_frames` returns every check as a :class:`Check`;
-:func:`compare_dirs` adds the two folders' environments and the printed table.
+Two scorecards (``nearlight score`` runs on one frozen suite) are compared
+*paired* (:func:`compare_scores`): each case of the baseline is paired with the
+new run's row of the same case id (whose categories and seed must agree too: a
+bad pairing is an error), and a case without a new row is ``missing``. Comparing
+each case value against value, each case its own verdict, would cry wolf: the
+same suite built on two machines has renders that differ in their last bits,
+and a discontinuous method (``paper-init``'s brightest pixel) flips on a few
+cases. So per method and metric there is one check over all the cases, and one
+per value of each category column that holds at least :data:`MIN_SEEDS` paired
+cases:
+
+``paired``
+    the differences ``d_i = new_i − base_i`` of the cases (those ``ok`` on both
+    sides with the metric defined on both). A difference within the exact
+    class, ``|d_i| ≤ EXACT_FLOOR + PAIRED_RTOL·|base_i|``, is no change (a
+    last-bit move is not a regression) and is dropped from the test. Worse only
+    when the mean moved by more than the tolerance (the asv rule above) *and* a
+    one-sided Wilcoxon signed-rank test of the cases that moved is significant
+    at the Šidák level over the run's paired checks (so one case that flips
+    cannot be: its p is 1/2; nor can fewer than ``log2(1/level)`` cases moved
+    one way, the price of not crying wolf). Better is the mirror image. The
+    change is printed with a paired bootstrap interval of the mean difference,
+    at the same level. Fewer than :data:`MIN_SEEDS` paired cases:
+    ``inconclusive``. Failures: the cases ok in the baseline and failed in the
+    new run against the reverse, McNemar's exact (binomial) test in the same
+    family.
+
+:func:`compare_frames` and :func:`compare_scores` return every check as a
+:class:`Check`; :func:`compare_dirs` adds the two folders' environments and the
+printed table.
 """
 
 from __future__ import annotations
@@ -74,6 +103,10 @@ EXACT_FLOOR: dict[str, float] = {
 #: Fewest seeds per side for a pooled check to reach a verdict: with 5 against 5 the smallest one-sided
 #: Mann–Whitney p is 1/252 = 0.004, below the Šidák level of a few dozen checks at alpha = 0.05.
 MIN_SEEDS = 5
+#: Relative part of the class of a paired check's per-case difference that counts as none, beside the
+#: metric's :data:`EXACT_FLOOR`: a case's error moved by 1/1000 of itself, the suites' build tolerance
+#: on images (``suite.DIGEST_RTOL``; docs/benchmark-suites.md, "Comparing scorecards").
+PAIRED_RTOL = 1e-3
 VERDICTS = ("worse", "missing", "better", "same", "inconclusive")
 
 
@@ -89,16 +122,17 @@ class Check:
     metric : str
         A :data:`~nearlight.evaluation.scoring.metrics.METRICS` column, or ``"failures"``.
     kind : str
-        ``"exact"`` or ``"pooled"``.
+        ``"exact"``, ``"pooled"`` or ``"paired"`` (scorecards).
     n_base, n_new : int
-        Rows (seeds) on each side.
+        Rows (seeds) on each side; paired: the paired cases, on both.
     base, new : float
-        Baseline and new value (mean over seeds for pooled checks; failure count for ``failures``).
+        Baseline and new value (mean over seeds for pooled checks, over the paired cases for paired ones;
+        failure count for ``failures``).
     low, high : float
-        Confidence interval of ``new − base`` (pooled; NaN otherwise).
+        Confidence interval of ``new − base`` (pooled, paired; NaN otherwise).
     p_value : float
-        One-sided p of the test in the direction of the change (pooled checks whose change exceeds
-        the tolerance; NaN otherwise).
+        One-sided p of the test in the direction of the change (pooled and paired checks whose change
+        exceeds the tolerance, failures checks whose counts differ; NaN otherwise).
     verdict : str
         One of :data:`VERDICTS`.
     """
@@ -123,7 +157,7 @@ class Check:
 
     def line(self) -> str:
         """One printable line."""
-        where = ", ".join(f"{k}={v}" for k, v in self.config.items())
+        where = ", ".join(f"{k}={v}" for k, v in self.config.items()) or ("all" if self.kind == "paired" else "")
         unit = METRICS.get(self.metric, "tasks")
         if self.verdict == "missing":
             return f"{self.verdict:>12}  {self.method} [{where}]: no rows in the new results"
@@ -131,9 +165,10 @@ class Check:
         rel = f" ({100 * change / self.base:+.1f}%)" if self.base and math.isfinite(change) else ""
         ci = f" [{self.low:+.3g}, {self.high:+.3g}]" if math.isfinite(self.low) else ""
         p = f" p={self.p_value:.2g}" if math.isfinite(self.p_value) else ""
+        n = self.n_base if self.kind == "paired" else f"{self.n_base}/{self.n_new}"
         return (
             f"{self.verdict:>12}  {self.method} [{where}] {self.metric}: {self.base:.6g} -> {self.new:.6g} "
-            f"{unit}, change {change:+.3g}{rel}{ci}{p} ({self.kind}, n={self.n_base}/{self.n_new})"
+            f"{unit}, change {change:+.3g}{rel}{ci}{p} ({self.kind}, n={n})"
         )
 
 
@@ -171,15 +206,25 @@ def _exact(metric: str, b: float, n: float, tolerance: float) -> str:
     return "worse" if n > b + allow else "better" if n < b - allow else "same"
 
 
-def _bootstrap_ci(xb: np.ndarray, xn: np.ndarray, level: float, seed: int) -> tuple[float, float]:
-    """Percentile-bootstrap interval of mean(xn) − mean(xb) (scipy.stats.bootstrap, unpaired)."""
+def _bootstrap_ci(xb: np.ndarray, xn: np.ndarray, level: float, seed: int, *,
+                  paired: bool = False) -> tuple[float, float]:  # fmt: skip
+    """Percentile-bootstrap interval of mean(xn) − mean(xb) (scipy.stats.bootstrap): the two runs' values
+    resampled apart, or, ``paired``, case by case (``xb[i]`` and ``xn[i]`` one case: the interval of the mean
+    paired difference)."""
     from scipy.stats import bootstrap
 
-    if np.ptp(np.concatenate([xb, xn])) == 0:
-        return 0.0, 0.0
-    res = bootstrap((xn, xb), lambda a, b, axis=-1: a.mean(axis=axis) - b.mean(axis=axis), paired=False,
+    if np.ptp(xn - xb if paired else np.concatenate([xb, xn])) == 0:  # nothing to resample: the change is known
+        change = float(xn.mean() - xb.mean())
+        return change, change
+    res = bootstrap((xn, xb), lambda a, b, axis=-1: a.mean(axis=axis) - b.mean(axis=axis), paired=paired,
                     confidence_level=level, n_resamples=2000, method="percentile", random_state=seed)  # fmt: skip
     return float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def sidak_level(alpha: float, m: int) -> float:
+    """Per-check level ``1 − (1 − alpha)^(1/m)`` that keeps the chance of any false alarm over ``m``
+    independent checks at ``alpha`` (Šidák)."""
+    return 1.0 - (1.0 - alpha) ** (1.0 / max(m, 1))
 
 
 def verdict_counts(checks: Sequence[Check]) -> dict[str, int]:
@@ -270,7 +315,7 @@ def compare_frames(
 
     pooled = [u for u in units if u[3] is not None and _is_noisy(u[2], u[3])]
     m = sum(1 + sum(_finite(b[x]).size > 0 for x in metrics if x in b) for _, _, b, _ in pooled)
-    level = 1.0 - (1.0 - alpha) ** (1.0 / max(m, 1))  # Šidák: per-check level for a family-wise alpha
+    level = sidak_level(alpha, m)
     checks: list[Check] = []
     for i, (config, method, b, n) in enumerate(units):
         if n is None:
@@ -323,23 +368,162 @@ def _is_score(df: pd.DataFrame) -> bool:
     return "renderer" in df and not df.empty and bool((df["renderer"] == "suite").all())
 
 
-def _as_scores(
-    new: pd.DataFrame, base: pd.DataFrame, axes: Sequence[str] | None
-) -> tuple[pd.DataFrame, pd.DataFrame, list[str], str]:
-    """Two score runs as :func:`compare_frames` compares them, and the note that says how.
+def _as_scores(new: pd.DataFrame, base: pd.DataFrame) -> tuple[pd.DataFrame, str]:
+    """The new score run as :func:`compare_scores` compares it with ``base``, and the note that says how.
 
-    A suite's inputs are frozen (the camera noise is in the stored capture), so every case is a unit
-    compared value against value (``noisy`` False; the unit is the case's categories and seed). Two runs
-    of one method each, different methods, are compared method against method on the same cases.
+    Two runs of one method each, different methods, are compared method against method on the same cases
+    (the new run's method is renamed the baseline's).
     """
-    axes = [*(axes or []), "seed"]
-    new, base = new.assign(noisy=False), base.assign(noisy=False)
     mn, mb = sorted(set(new["method"])), sorted(set(base["method"]))
-    note = "note: scorecards: every case of the frozen suite compared value against value"
+    note = ("note: scorecards: each case paired with its baseline case (by case id); per method and metric one "
+            "paired check over all cases and one per category value")  # fmt: skip
     if len(mn) == 1 and len(mb) == 1 and mn != mb:
         new = new.assign(method=mb[0])
         note += f"; method {mn[0]!r} (new) against {mb[0]!r} (baseline)"
-    return new, base, axes, note
+    return new, note
+
+
+def unpaired_cases(new: pd.DataFrame, base: pd.DataFrame) -> int:
+    """How many cases (case id and method) of a score run ``new`` have no case in ``base``: no check covers them."""
+    seen = set(zip(base["task_id"], base["method"]))
+    return sum(k not in seen for k in zip(new["task_id"], new["method"]))
+
+
+def _same_cases(pairs: pd.DataFrame, cols: Sequence[str]) -> None:
+    """Raise :class:`UserError` unless every paired case has the same categories and seed on both sides."""
+    for col in [*cols, "seed"]:
+        if col not in pairs:
+            continue
+        b, n = pairs[col], pairs[f"{col}_new"]
+        differ = ~((b == n) | (b.isna() & n.isna()))
+        if differ.any():
+            i = differ.to_numpy().nonzero()[0][0]
+            raise UserError(f"case {pairs['task_id'].iloc[i]}: {col} is {b.tolist()[i]!r} in the baseline and "
+                            f"{n.tolist()[i]!r} in the new results: not the same case (two scorecards of one suite "
+                            f"agree on every case's categories and seed)")  # fmt: skip
+
+
+def _paired_groups(rows: pd.DataFrame, cols: Sequence[str]) -> list[tuple[dict[str, Any], pd.DataFrame]]:
+    """The cases a method's paired checks cover: all of them, then each value of each category column that
+    holds at least :data:`MIN_SEEDS` of them."""
+    groups = [({}, rows)]
+    for col in cols:
+        groups += [({col: value}, g) for value, g in rows.groupby(col, sort=False, dropna=False) if len(g) >= MIN_SEEDS]
+    return groups
+
+
+def _paired_failures(c: Check, ok_base: np.ndarray, ok_new: np.ndarray, level: float) -> None:
+    """The verdict of a paired failures check: McNemar's exact test, the one-sided binomial test of the
+    discordant cases (failed in one run only), in the direction of the larger count."""
+    from scipy.stats import binomtest
+
+    if c.n_base < MIN_SEEDS:
+        c.verdict = "inconclusive"
+        return
+    failed, recovered = int((ok_base & ~ok_new).sum()), int((~ok_base & ok_new).sum())
+    if failed == recovered:
+        return
+    c.p_value = float(binomtest(max(failed, recovered), failed + recovered, 0.5, alternative="greater").pvalue)
+    if c.p_value < level:
+        c.verdict = "worse" if failed > recovered else "better"
+
+
+def _paired_metric(c: Check, xb: np.ndarray, xn: np.ndarray, level: float, tolerance: float,
+                   seed: int | None) -> None:  # fmt: skip
+    """The verdict of a paired metric check on the cases' values ``xb``, ``xn`` (one case per index).
+
+    A case's difference within the exact class (``|d| ≤ EXACT_FLOOR + PAIRED_RTOL·|base|``) counts as
+    none and is dropped from the one-sided Wilcoxon signed-rank test (exact for up to 50 moved cases
+    without ties), which runs only where the mean moved by more than the tolerance; ``seed`` seeds the
+    bootstrap interval of the mean difference (None: no interval).
+    """
+    from scipy.stats import wilcoxon
+
+    if c.n_base < MIN_SEEDS:
+        c.verdict = "inconclusive"
+        return
+    if seed is not None:
+        c.low, c.high = _bootstrap_ci(xb, xn, 1.0 - level, seed, paired=True)
+    d = xn - xb
+    moved = d[np.abs(d) > EXACT_FLOOR.get(c.metric, 0.0) + PAIRED_RTOL * np.abs(xb)]
+    if c.new > c.base * (1.0 + tolerance):
+        alternative, verdict = "greater", "worse"
+    elif c.new < c.base * (1.0 - tolerance):
+        alternative, verdict = "less", "better"
+    else:
+        return
+    # no case moved beyond the class: no evidence of a change in either direction
+    c.p_value = float(wilcoxon(moved, alternative=alternative).pvalue) if moved.size else 1.0
+    if c.p_value < level:
+        c.verdict = verdict
+
+
+def compare_scores(
+    new: pd.DataFrame,
+    base: pd.DataFrame,
+    *,
+    categories: Sequence[str] = (),
+    tolerance: float = 0.05,
+    alpha: float = 0.05,
+    include_runtime: bool = False,
+    intervals: bool = True,
+) -> list[Check]:
+    """Every paired check of a score run ``new`` against ``base`` (the ``paired`` rules of the module docstring).
+
+    Parameters
+    ----------
+    new, base : DataFrame
+        Score rows (``nearlight score``): ``task_id`` (the case id), ``method``, ``status``, ``seed``, the
+        category columns and the metric columns.
+    categories : sequence of str
+        The suite's category columns: a check per value holding at least :data:`MIN_SEEDS` paired cases.
+    tolerance, alpha, include_runtime, intervals
+        As :func:`compare_frames` (``alpha``: over the run's paired checks).
+
+    Returns
+    -------
+    list of Check
+        First a ``missing`` check per baseline case without a new row; then per method, for all cases and
+        then each category value, failures first, then each metric.
+
+    Raises
+    ------
+    UserError
+        When a case id of both runs has other categories or another seed in each.
+    """
+    check_thresholds(tolerance, alpha)
+    cols = [c for c in categories if c in base]
+    metrics = [m for m in [*COMPARED, *(["runtime_s"] if include_runtime else [])] if m in base and m in new]
+    new, base = _lean(_with_columns(new, cols), ["task_id", *cols], metrics), _lean(base, ["task_id", *cols], metrics)
+    merged = base.merge(new, on=["task_id", "method"], how="left", suffixes=("", "_new"), indicator=True)
+    found = (merged.pop("_merge") == "both").to_numpy()
+    checks = [Check(r["method"], {**{c: r[c] for c in cols}, "seed": r["seed"]}, "-", "-", 1, 0, math.nan, math.nan,
+                    verdict="missing") for _, r in merged[~found].iterrows()]  # fmt: skip
+    pairs = merged[found]
+    _same_cases(pairs, cols)
+    todo: list[tuple[Check, np.ndarray, np.ndarray]] = []  # each check with its paired values (failures: ok flags)
+    for method, rows in pairs.groupby("method", sort=False):
+        for config, g in _paired_groups(rows, cols):
+            ok_base, ok_new = (g["status"] == "ok").to_numpy(), (g["status_new"] == "ok").to_numpy()
+            todo.append((Check(method, config, "failures", "paired", len(g), len(g), int((~ok_base).sum()),
+                               int((~ok_new).sum())), ok_base, ok_new))  # fmt: skip
+            both = g[ok_base & ok_new]
+            for metric in metrics:
+                xb, xn = both[metric].to_numpy(float), both[f"{metric}_new"].to_numpy(float)
+                if not np.isfinite(xb).any():
+                    continue
+                keep = np.isfinite(xb) & np.isfinite(xn)  # a case whose metric is undefined on a side is not paired
+                xb, xn = xb[keep], xn[keep]
+                means = (float(x.mean()) if x.size else math.nan for x in (xb, xn))
+                todo.append((Check(method, config, metric, "paired", xb.size, xn.size, *means), xb, xn))
+    level = sidak_level(alpha, len(todo))
+    for i, (c, xb, xn) in enumerate(todo):
+        if c.metric == "failures":
+            _paired_failures(c, xb, xn, level)
+        else:
+            _paired_metric(c, xb, xn, level, tolerance, seed=i if intervals else None)
+        checks.append(c)
+    return checks
 
 
 def _stale_baseline(base_dir: Path) -> list[str]:
@@ -370,7 +554,8 @@ def compare_dirs(
     Parameters
     ----------
     new_dir, base_dir : path-like
-        Results folders of ``nearlight sweep`` (or of ``nearlight score``: :func:`_as_scores`).
+        Results folders of ``nearlight sweep`` (:func:`compare_frames`), or of ``nearlight score``
+        (:func:`compare_scores`).
     json_out : path-like, optional
         Also write every check, the summary and the environment differences as JSON.
     **options
@@ -394,22 +579,29 @@ def compare_dirs(
         score_dir, sweep_dir = (new_dir, base_dir) if _is_score(new) else (base_dir, new_dir)
         raise UserError(f"{sweep_dir}: a sweep's results, and {score_dir} a scorecard's (`nearlight score`); "
                         f"compare like with like: two sweeps, or two score folders")  # fmt: skip
-    if _is_score(new) and _is_score(base):
-        new, base, axes, note = _as_scores(new, base, axes)
+    scores = _is_score(new) and _is_score(base)
+    if scores:
+        new, note = _as_scores(new, base)
         lines.append(note)
-    checks = compare_frames(new, base, axes=axes, **options)
-    unchecked = unchecked_units(new, base, axes=axes)
-    if unchecked:
-        lines.append(f"note: {unchecked} unit(s) of {new_dir} (configuration and method) are not in the baseline: "
-                     "not checked")
+        checks = compare_scores(new, base, categories=axes or (), **options)
+        unchecked = unpaired_cases(new, base)
+        if unchecked:
+            lines.append(f"note: {unchecked} case(s) of {new_dir} are not in the baseline: not checked")
+    else:
+        checks = compare_frames(new, base, axes=axes, **options)
+        unchecked = unchecked_units(new, base, axes=axes)
+        if unchecked:
+            lines.append(f"note: {unchecked} unit(s) of {new_dir} (configuration and method) are not in the "
+                         "baseline: not checked")  # fmt: skip
 
     if not new_complete:
         lines.append(f"note: {new_dir} is an incomplete sweep ({len(new)} rows)")
     if mn.get("sweep_hash") != mb.get("sweep_hash"):
+        matched = ("cases are paired by case id" if scores
+                   else f"units are matched by {', '.join(axes or ['config columns'])} and method")  # fmt: skip
         lines.append(
             f"note: different task lists ({mn.get('name')!r} {mn.get('sweep_hash')} vs {mb.get('name')!r} "
-            f"{mb.get('sweep_hash')}): other seeds, methods or settings; units are matched by "
-            f"{', '.join(axes or ['config columns'])} and method"
+            f"{mb.get('sweep_hash')}): other seeds, methods or settings; {matched}"
         )
     lines += _stale_baseline(base_dir)
     env_new, env_base = read_environments(new_dir), read_environments(base_dir)
@@ -419,9 +611,10 @@ def compare_dirs(
     lines += [f"  {d}" for d in diffs]
     lines += [c.line() for c in checks]
     counts = verdict_counts(checks)
-    n_pooled = sum(c.kind == "pooled" for c in checks)
+    tested = (f"{sum(c.kind == 'paired' for c in checks)} paired case by case" if scores
+              else f"{sum(c.kind == 'pooled' for c in checks)} pooled over seeds")  # fmt: skip
     summary = (
-        f"{len(checks)} checks ({n_pooled} pooled over seeds at family-wise alpha "
+        f"{len(checks)} checks ({tested} at family-wise alpha "
         f"{options.get('alpha', 0.05):g}, tolerance {options.get('tolerance', 0.05):g}): "
         + ", ".join(f"{counts[v]} {v}" for v in VERDICTS)
     )

@@ -210,7 +210,7 @@ def test_compare_scorecards_method_against_method(suite, plugins, tmp_path, caps
     assert _score(suite, a, "nl_score_plugins:oracle") == 0 and _score(suite, b, "nl_score_plugins:highlight") == 0
     capsys.readouterr()
     assert main(["compare", str(a), str(a)]) == 0
-    assert "every case of the frozen suite compared value against value" in capsys.readouterr().out
+    assert "each case paired with its baseline case (by case id)" in capsys.readouterr().out
     assert main(["compare", str(b), str(a)]) == 1  # the highlight guess is worse than the oracle
     text = capsys.readouterr().out
     assert "'nl_score_plugins:highlight' (new) against 'nl_score_plugins:oracle' (baseline)" in text
