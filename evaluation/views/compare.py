@@ -458,6 +458,33 @@ def _paired_metric(c: Check, xb: np.ndarray, xn: np.ndarray, level: float, toler
         c.verdict = verdict
 
 
+def _continuous_cases(new: pd.DataFrame, base: pd.DataFrame, categories: Sequence[str],
+                      options: dict[str, Any]) -> tuple[list[Check], int]:
+    """Two score runs' continuous methods (not a brightest-pixel choice: ``full``, ``distant``), case by case.
+
+    A continuous method's number moves with a render's last bits by far less than :data:`EXACT_FLOOR`
+    (measured across CPUs, module docstring), so each of its cases is also its own ``exact`` check,
+    as sweeps' noise-free units are: one case gone wrong is a regression there, where the paired rule
+    needs ``log2(1/level)`` cases. Brightest-pixel methods (``paper-init``, ``paper``) flip on a few
+    cases between two builds and get the paired checks only.
+
+    Returns
+    -------
+    checks : list of Check
+        The case checks that are not ``same`` (the others are counted, not listed).
+    n : int
+        How many case checks were made.
+    """
+    from ..paper.check import CONTINUOUS, continuity
+
+    methods = [m for m in base["method"].unique() if continuity(str(m)) == CONTINUOUS]
+    if not methods:
+        return [], 0
+    sides = [df[df["method"].isin(methods)].assign(noisy=False) for df in (new, base)]
+    checks = compare_frames(*sides, axes=[*categories, "seed"], **options)
+    return [c for c in checks if c.verdict not in ("same", "missing")], len(checks)
+
+
 def compare_scores(
     new: pd.DataFrame,
     base: pd.DataFrame,
@@ -584,6 +611,11 @@ def compare_dirs(
         new, note = _as_scores(new, base)
         lines.append(note)
         checks = compare_scores(new, base, categories=axes or (), **options)
+        per_case, n_case = _continuous_cases(new, base, axes or (), options)
+        if n_case:
+            lines.append(f"note: continuous methods also case by case, value against value: {n_case} checks, "
+                         f"{len(per_case)} beyond the exact class (listed)")
+        checks += per_case
         unchecked = unpaired_cases(new, base)
         if unchecked:
             lines.append(f"note: {unchecked} case(s) of {new_dir} are not in the baseline: not checked")
