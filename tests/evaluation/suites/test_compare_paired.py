@@ -26,7 +26,7 @@ from nearlight.errors import UserError
 from nearlight.evaluation.engine.store import read_results
 from nearlight.evaluation.planted import further_along_ray_every
 from nearlight.evaluation.suites.suite import MANIFEST, case_record, read_manifest
-from nearlight.evaluation.views.compare import COMPARED, compare_scores, sidak_level, unpaired_cases
+from nearlight.evaluation.views.compare import _continuous_cases, COMPARED, compare_scores, sidak_level, unpaired_cases
 from nearlight.files.atomic import write_json
 from nearlight.generator.analytic import analytic_capture
 
@@ -235,3 +235,18 @@ def test_a_case_whose_categories_disagree_is_a_one_line_error(scores, tmp_path, 
     with pytest.raises(UserError, match="seed is 0 in the baseline and 9"):
         rows = _full_rows(scores)
         compare_scores(rows.assign(seed=np.where(rows["seed"] == 0, 9, rows["seed"])), rows)
+
+
+def test_a_continuous_method_is_also_checked_case_by_case(scores):
+    """`full` cannot flip: the same one-case jump the paired checks let through is worse case by case (its lamp
+    metrics, that case only); renamed a brightest-pixel method (`paper-init`) it gets no case checks."""
+    base = _full_rows(scores)
+    new = base.copy()
+    lamp = ["lamp_position_error_m", "lamp_position_error_pct", "distance_error_m"]
+    new.loc[0, lamp] = 20.0 * base[lamp].mean()
+    checks, n = _continuous_cases(new, base, ["lamp_distance", "noise"], {})
+    assert N_CASES < n <= N_CASES * (1 + len(COMPARED))  # each case: failures + each metric it has
+    assert sorted(c.metric for c in checks) == sorted(lamp) and {c.verdict for c in checks} == {"worse"}
+    assert {c.config["seed"] for c in checks} == {base.loc[0, "seed"]}
+    flips = [df.assign(method="paper-init") for df in (new, base)]
+    assert _continuous_cases(*flips, ["lamp_distance", "noise"], {}) == ([], 0)
