@@ -10,11 +10,31 @@ from ..errors import require_extra
 from ..files.outputs import check_file_out, check_folder
 
 
+def renderer_folder() -> str:
+    """The user cache's sub-folder of this process's renderer: its variant and LLVM target.
+
+    A render key names a scene, not the code that renders it: kept under one key, a render made
+    with another LLVM target (another machine sharing the cache, ``NEARLIGHT_JIT_TARGET=host``, the
+    host-target renders of nearlight before 0.4) would be read back as this one's. E.g.
+    ``llvm_ad_mono_polarized-x86-64-v3-avx2-fma-8-lanes``, ``llvm_ad_mono_polarized-host``.
+    """
+    from .jit_target import planned_target
+    from .llvm import LLVM_VARIANT, planned_variant
+
+    variant = planned_variant()[0]
+    if variant != LLVM_VARIANT:
+        return variant
+    target = planned_target()
+    slug = "host" if target.startswith("host") else "-".join("".join(c if c.isalnum() else " " for c in target).split())
+    return f"{variant}-{slug}"
+
+
 def default_cache_dir() -> Path:
-    """``$NEARLIGHT_CACHE`` or ``$XDG_CACHE_HOME/nearlight/renders`` (``~/.cache/...``)."""
-    if os.environ.get("NEARLIGHT_CACHE"):
-        return Path(os.environ["NEARLIGHT_CACHE"])
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "nearlight" / "renders"
+    """``$NEARLIGHT_CACHE`` or ``$XDG_CACHE_HOME/nearlight/renders`` (``~/.cache/...``), in the sub-folder
+    of this renderer (:func:`renderer_folder`)."""
+    root = (Path(os.environ["NEARLIGHT_CACHE"]) if os.environ.get("NEARLIGHT_CACHE")
+            else Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "nearlight" / "renders")
+    return root / renderer_folder()
 
 
 def add_cache_options(parser: argparse.ArgumentParser, *, default: str | None = None) -> None:

@@ -75,12 +75,23 @@ def test_one_spelling_of_quiet_cache_and_set():
     assert not any("--no-progress" in f for f in flags.values())
 
 
-def test_default_cache_is_one_place(monkeypatch, tmp_path):
+def test_default_cache_is_one_place_per_renderer(monkeypatch, tmp_path):
+    from nearlight.generator.cli import renderer_folder
+
     monkeypatch.setenv("NEARLIGHT_CACHE", str(tmp_path / "c"))
-    assert default_cache_dir() == tmp_path / "c"
+    assert default_cache_dir() == tmp_path / "c" / renderer_folder()
     monkeypatch.delenv("NEARLIGHT_CACHE")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    assert default_cache_dir() == tmp_path / "xdg" / "nearlight" / "renders"
+    assert default_cache_dir() == tmp_path / "xdg" / "nearlight" / "renders" / renderer_folder()
+    # renders made for another LLVM target are kept apart (a render key names the scene, not the target)
+    from nearlight.generator.llvm import LLVM_VARIANT, planned_variant
+
+    if planned_variant()[0] != LLVM_VARIANT:
+        return
+    monkeypatch.setenv("NEARLIGHT_JIT_TARGET", "host")
+    host = renderer_folder()
+    monkeypatch.setenv("NEARLIGHT_JIT_TARGET", "portable")
+    assert host == "llvm_ad_mono_polarized-host" != renderer_folder()
 
 
 def test_sweep_cache_rule(tmp_path, capsys):
