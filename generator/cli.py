@@ -29,12 +29,22 @@ def renderer_folder() -> str:
     return f"{variant}-{slug}"
 
 
+def cache_root() -> Path:
+    """``$NEARLIGHT_CACHE`` or ``$XDG_CACHE_HOME/nearlight/renders`` (``~/.cache/...``): the user cache, every renderer's."""
+    if os.environ.get("NEARLIGHT_CACHE"):
+        return Path(os.environ["NEARLIGHT_CACHE"])
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "nearlight" / "renders"
+
+
 def default_cache_dir() -> Path:
-    """``$NEARLIGHT_CACHE`` or ``$XDG_CACHE_HOME/nearlight/renders`` (``~/.cache/...``), in the sub-folder
-    of this renderer (:func:`renderer_folder`)."""
-    root = (Path(os.environ["NEARLIGHT_CACHE"]) if os.environ.get("NEARLIGHT_CACHE")
-            else Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "nearlight" / "renders")
-    return root / renderer_folder()
+    """The user cache of this process's renderer: :func:`cache_root` / :func:`renderer_folder`.
+
+    Raises
+    ------
+    UserError
+        ``NEARLIGHT_JIT_TARGET`` or ``NEARLIGHT_MITSUBA_VARIANT`` names no choice.
+    """
+    return cache_root() / renderer_folder()
 
 
 def add_cache_options(parser: argparse.ArgumentParser, *, default: str | None = None) -> None:
@@ -45,7 +55,7 @@ def add_cache_options(parser: argparse.ArgumentParser, *, default: str | None = 
     The default is the user cache for ``render`` and the results folder's
     ``renders/`` for ``sweep`` and ``reproduce`` (``default`` names it in the help).
     """
-    where = default or f"$NEARLIGHT_CACHE or {default_cache_dir()}"
+    where = default or f"$NEARLIGHT_CACHE or {cache_root()}, a sub-folder per renderer"
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--cache", metavar="DIR", default=None, help=f"render cache folder (default: {where})")
     group.add_argument("--no-cache", action="store_true", help="do not read or write a render cache")
