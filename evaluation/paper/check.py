@@ -315,7 +315,7 @@ def check(new: dict[str, Any], ref: dict[str, Any], *, tables: Iterable[str] | N
     return lines + details, sum(t["miss"] for t in per_table.values())
 
 
-def tolerance_text(doc: Mapping[str, Any] | None = None) -> str:
+def tolerance_text(doc: Mapping[str, Any]) -> str:
     """The tolerance classes as Markdown, for the report: the rule, then each table's methods by class."""
     parts = ", ".join(f"{m} ±{t:g}" for m, t in TOLERANCES.items())
     text = (f"Tolerance classes (`nearlight reproduce --against DIR` applies exactly these, table by table, "
@@ -327,8 +327,6 @@ def tolerance_text(doc: Mapping[str, Any] | None = None) -> str:
             f"compared value by value, a first-stage quantile may change only within the {100 * LEVEL:g} % "
             "interval of a two-sample bootstrap of both runs' samples pooled, a count must pass Fisher's "
             "exact test at the same level.")
-    if doc is None:
-        return text
     per = []
     for table, kinds in classes(doc).items():
         said = "; ".join(f"{k}: {', '.join(f'`{m}`' for m in ms)}" for k, ms in kinds.items() if ms)

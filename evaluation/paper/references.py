@@ -29,7 +29,7 @@ from typing import Any
 
 from ...errors import UserError, one_line
 from ...files.atomic import write_json
-from ..engine.fingerprint import REFERENCES, fingerprint
+from ..engine.fingerprint import REFERENCES, fingerprints as code_fingerprints
 from ..engine.run import sweep_inputs
 
 #: Where reproductions are kept.
@@ -42,7 +42,7 @@ def fingerprints(*, quick: bool) -> dict[str, str]:
     """``{table: sha256}`` of what each table of the reproduction (profile ``quick``) depends on, today."""
     from .reproduce import load_sweeps
 
-    return {table: fingerprint(sweep_inputs(sweep)) for table, sweep in load_sweeps(quick=quick).items()}
+    return code_fingerprints({table: sweep_inputs(sweep) for table, sweep in load_sweeps(quick=quick).items()})
 
 
 def keep(run: Path, name: str, tables: Iterable[str], *, note: str, folder: Path = FOLDER) -> Path:
