@@ -1,0 +1,547 @@
+"""Surface normals fitted to the range data: inverse depth over the pixel grid, a support the noise and the data choose.
+
+Why inverse depth over pixels
+-----------------------------
+A pinhole camera's unnormalised rays are affine in the pixel coordinates,
+``R(c, r) = M·[c, r, 1]`` (:func:`pinhole_matrix`; columns ``c``, rows ``r``,
+pixel centres at ``k + 0.5``), and a plane ``m·X = κ`` seen through them has an
+inverse depth ``f = 1/((X − o)·n)`` (``n`` the optical axis, ``o`` the camera)
+that is *affine* in ``(c, r)``. So a fit of ``f`` over pixel offsets has
+regressors without error (a range sensor's error moves ``P`` along the ray,
+never across it), is exact on planes at any window size, and gives the
+tangent plane from ``f``'s value and gradient at the pixel:
+``m ∝ M⁻ᵀ [f_c, f_r, f − c f_c − r f_r]`` (:func:`_normal`).
+
+The window
+----------
+Over a whole ``(2w+1)²`` square window centred on the pixel, the odd and even
+monomials decouple, so the least-squares gradient of a quadratic is
+``Σ Δc·f / Σ Δc²`` (the plane's), unbiased by the curvature; its standard
+deviation is ``σ_f / √(Σ Δc²)`` with ``σ_f`` the inverse depth's noise
+(:class:`RangeModel`); the value at the centre is the quadratic's ``c₀``.
+The sums over any window cost four look-ups in summed-area tables, so every
+window of the ladder :data:`HALF_WIDTHS` is computed for every pixel. Each
+pixel takes the widest window by the **intersection of confidence
+intervals** (ICI; Katkovnik, Egiazarian & Astola, *Local Approximation
+Techniques in Signal and Image Processing*, SPIE 2006, ch. 6): widening
+while every narrower window's interval ``t ± Γ·s`` (``t`` the log-gradient,
+``Γ`` = :data:`GAMMA`) still meets the others, i.e. until the curvature's
+bias shows against the noise. A noise-free range keeps small windows (exact
+on planes, unbiased to second order on curves); a noisy one widens as far
+as the surface stays a quadratic.
+
+A whole plane
+-------------
+When one plane fits every surface pixel within the noise (:func:`_one_plane`),
+every normal is that plane's: a board is one plane over all its pixels,
+also at its edges, where no centred window is whole.
+
+Quantisation
+------------
+Depth quantised in steps ``q`` (a depth map in millimetres, a light stripe's
+0.2 mm) is a staircase, not noise: along the axis the steps are taken (``z``
+for a depth map, the ray for a stripe scanner) the depth sits on a lattice
+(:func:`measured_range` finds it). Inside a terrace the range is flat and a
+small window reads a false slope of zero, with no scatter to warn the ICI;
+so a quantised range takes no window narrower than one that spans
+:data:`STEPS_PER_WINDOW` steps of the local slope, and its noise is the
+staircase's ``q/√12`` (the grid's offset unknown, the error over a window
+that spans several steps behaves as that uniform noise).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Literal
+
+import numpy as np
+from scipy.ndimage import distance_transform_cdt
+
+#: Half-widths (pixels) of the square windows tried, ``(2w+1)²`` pixels each.
+HALF_WIDTHS = (1, 2, 3, 4, 6, 8, 11, 16, 22, 32, 45, 64, 90, 128, 180, 256)
+#: ICI threshold: intervals ``t ± Γ·s`` (s the standard deviation of the window's log-gradient).
+GAMMA = 2.0
+#: A quantised range's smallest window spans this many depth steps of the local slope.
+STEPS_PER_WINDOW = 4.0
+#: Relative precision of float32 ``P`` (half an ulp over √3): the noise floor of an exact range.
+FLOAT32_FLOOR = 2.0**-24 / np.sqrt(3.0)
+#: Below this cosine between normal and view, a normal is refitted in its own tangent frame (:func:`_tangent_fit`).
+GRAZING = 0.5
+#: Largest half-width of the tangent-frame refit (its cost grows with the window's area).
+TANGENT_MAX = 6
+#: A range is quantised when its pixels share few depth levels: on average at least this many per level.
+PIXELS_PER_LEVEL = 4
+#: Largest ratio of the smallest gap between depth levels to the step :func:`_lattice` looks for.
+MAX_DIVISOR = 16
+#: Spatial blocks (per side) of the jackknife that gives a whole plane's covariance (:func:`_one_plane`).
+JACKKNIFE_BLOCKS = 4
+#: A plane fits the whole surface when its residual RMS is within this factor of the noise.
+PLANE_FIT = 1.5
+
+
+@dataclasses.dataclass(frozen=True)
+class RangeModel:
+    """What the range sensor's error is (``rig.range``, or measured from ``P``).
+
+    Attributes
+    ----------
+    sigma_m : float
+        Standard deviation of Gaussian noise, metres (0: none).
+    quantum_m : float
+        Step of the depth's quantisation, metres (0: not quantised).
+    axis : {"ray", "z"}
+        Along what the noise and the steps are: the distance along each ray
+        (a light-stripe or time-of-flight sensor) or the depth along the
+        optical axis (what a depth map stores).
+    source : str
+        ``"rig"`` (stated by the capture), ``"measured"`` (from ``P``).
+    """
+
+    sigma_m: float = 0.0
+    quantum_m: float = 0.0
+    axis: Literal["ray", "z"] = "ray"
+    source: str = "measured"
+
+    @property
+    def equivalent_sigma_m(self) -> float:
+        """Standard deviation of the noise and the staircase together, ``√(σ² + q²/12)``, metres."""
+        return float(np.hypot(self.sigma_m, self.quantum_m / np.sqrt(12.0)))
+
+
+def pinhole_matrix(rays: np.ndarray) -> np.ndarray:
+    """``M`` with ``M·[c, r, 1] ∝`` the ray through pixel ``(row r, column c)`` (centres at ``k + 0.5``).
+
+    Fitted to the unit rays of four pixels well apart (a pinhole's rays are
+    exactly of that form: :func:`nearlight.physics.camera.camera_rays`, or
+    :func:`nearlight.estimator.geometry.capture_rays`'s fitted pinhole), by
+    the direct linear transform over a 5 × 5 lattice of pixels.
+
+    Parameters
+    ----------
+    rays : ndarray, shape (H, W, 3)
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        Scaled so that ``M[:, 2]·n = 1`` with ``n`` the optical axis (:func:`optical_axis`).
+    """
+    H, W = rays.shape[:2]
+    rows = np.linspace(0, H - 1, 5).round().astype(int)
+    cols = np.linspace(0, W - 1, 5).round().astype(int)
+    rr, cc = np.meshgrid(rows, cols, indexing="ij")
+    d = rays[rr.ravel(), cc.ravel()]
+    s = float(max(H, W))
+    p = np.stack([(cc.ravel() + 0.5) / s, (rr.ravel() + 0.5) / s, np.ones(rr.size)], axis=1)
+    A = np.zeros((2 * len(d), 9))
+    A[0::2, 3:6] = -d[:, 2:3] * p
+    A[0::2, 6:9] = d[:, 1:2] * p
+    A[1::2, 0:3] = d[:, 2:3] * p
+    A[1::2, 6:9] = -d[:, 0:1] * p
+    M = np.linalg.svd(A, full_matrices=False)[2][-1].reshape(3, 3) @ np.diag([1 / s, 1 / s, 1.0])
+    if float((M @ [cols[0] + 0.5, rows[0] + 0.5, 1.0]) @ d[0]) < 0:
+        M = -M
+    n = np.cross(M[:, 0], M[:, 1])
+    n /= np.linalg.norm(n)
+    n *= np.sign(n @ M[:, 2])
+    return M / float(n @ M[:, 2])
+
+
+def optical_axis(M: np.ndarray) -> np.ndarray:
+    """Unit optical axis of the pinhole ``M`` (normal to the image plane, pointing forward), shape (3,)."""
+    n = np.cross(M[:, 0], M[:, 1])
+    n /= np.linalg.norm(n)
+    return n * np.sign(n @ M[:, 2])
+
+
+def _lattice(depth: np.ndarray) -> float:
+    """Step ``q`` when the depths (metres, 1-D) sit on a lattice ``k·q + offset``, else 0.
+
+    A lattice has few distinct levels for its pixels (on average at least
+    :data:`PIXELS_PER_LEVEL` on each) and every gap between consecutive levels
+    a whole multiple of one step (the smallest gap, or that divided by up to
+    :data:`MAX_DIVISOR`); a smooth range's values are all distinct. Values within float32 precision of each other count as one.
+    """
+    if depth.size < 50:
+        return 0.0
+    vals = np.sort(depth)
+    tol = 1e-7 + 4e-7 * float(np.abs(vals).max())
+    levels = vals[np.concatenate([[True], np.diff(vals) > tol])]
+    if levels.size < 3 or levels.size * PIXELS_PER_LEVEL > vals.size:
+        return 0.0
+    gaps = np.diff(levels)
+    # the step is the gaps' greatest common divisor: on a surface steeper than a step per pixel no two
+    # neighbours share a level, and the smallest gap seen is a multiple of the step
+    for m in range(1, MAX_DIVISOR + 1):
+        q = float(np.min(gaps)) / m
+        if q <= 8 * tol:
+            break
+        k = gaps / q
+        if np.all(np.abs(k - np.rint(k)) * q <= 4 * tol):
+            return q
+    return 0.0
+
+
+def measured_range(P: np.ndarray, camera_position: np.ndarray, valid: np.ndarray, axis: np.ndarray) -> RangeModel:
+    """The range sensor's error read off ``P``: a lattice along ``z`` or along the ray, else Gaussian noise.
+
+    Quantisation is found as depths on a lattice (:func:`_lattice`);
+    otherwise the noise is measured from fourth differences
+    of the distance along the ray
+    (:func:`nearlight.estimator.normals.range_noise`).
+
+    Parameters
+    ----------
+    P : ndarray, shape (H, W, 3)
+    camera_position : ndarray, shape (3,)
+    valid : ndarray of bool, shape (H, W)
+    axis : ndarray, shape (3,)
+        The optical axis.
+    """
+    from .normals import range_noise
+
+    rel = np.where(valid[..., None], P - camera_position, 0.0)
+    for name, depth in (("z", rel @ axis), ("ray", np.linalg.norm(rel, axis=-1))):
+        q = _lattice(depth[valid])
+        if q > 0:
+            return RangeModel(quantum_m=q, axis=name)
+    sigma = range_noise(P, camera_position, valid)
+    return RangeModel(sigma_m=float(sigma) if np.isfinite(sigma) else 0.0, axis="ray")
+
+
+def _sat(a: np.ndarray) -> np.ndarray:
+    """Summed-area table with a zero first row and column, shape ``(H + 1, W + 1)``."""
+    out = np.zeros((a.shape[0] + 1, a.shape[1] + 1))
+    np.cumsum(np.cumsum(a, axis=0), axis=1, out=out[1:, 1:])
+    return out
+
+
+def _box(S: np.ndarray, w: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Sums over the ``(2w+1)²`` windows centred on pixels ``(rows, cols)`` (windows inside the image), shape ``rows.shape``."""
+    r0, r1, c0, c1 = rows - w, rows + w + 1, cols - w, cols + w + 1
+    return S[r1, c1] - S[r0, c1] - S[r1, c0] + S[r0, c0]
+
+
+def _normal(M: np.ndarray, f0: np.ndarray, gc: np.ndarray, gr: np.ndarray, cc: np.ndarray, rr: np.ndarray) -> np.ndarray:
+    """Unit normals ``M⁻ᵀ [f_c, f_r, f − c f_c − r f_r]`` (not yet oriented), shape ``f0.shape + (3,)``."""
+    v = np.stack([gc, gr, f0 - cc * gc - rr * gr], axis=-1)
+    m = v @ np.linalg.inv(M)  # (M⁻ᵀ v)ᵀ = vᵀ M⁻¹
+    return m / np.linalg.norm(m, axis=-1, keepdims=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class FittedSurface:
+    """Normals fitted to a range image (:func:`fit_surface`).
+
+    Attributes
+    ----------
+    P : ndarray, shape (H, W, 3)
+        The fitted surface's points on each pixel's ray, metres (the range
+        with its noise fitted away); NaN where no fit.
+    N : ndarray, shape (H, W, 3)
+        Unit normals towards the camera; NaN where no fit.
+    sd_rad : ndarray, shape (H, W)
+        Standard deviation of each normal's direction from the range noise,
+        radians (the two tilts' in quadrature); NaN where no fit.
+    half_width : ndarray of int, shape (H, W)
+        Half-width of the window each normal came from (0: no window; −1:
+        the whole plane).
+    model : RangeModel
+        The range error the fit assumed.
+    plane : bool
+        Whether one plane fitted the whole surface.
+    """
+
+    P: np.ndarray
+    N: np.ndarray
+    sd_rad: np.ndarray
+    half_width: np.ndarray
+    model: RangeModel
+    plane: bool
+
+
+def _one_plane(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, cc: np.ndarray, rr: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(coefficients [a, b, c] of f ≈ a + b·c + c·r, their covariance)`` when one plane fits every valid pixel
+    within :data:`PLANE_FIT` × the noise, else None.
+
+    The covariance is the larger of the independent-noise one and a
+    delete-one-block jackknife over :data:`JACKKNIFE_BLOCKS`² spatial blocks:
+    a staircase's errors are correlated over a terrace, which the first
+    alone would take for independent noise (on a 1-mm z-quantised board,
+    errors of 5 to 17 standard deviations).
+    """
+    if valid.sum() < 20:
+        return None
+    x, y, w = cc[valid], rr[valid], 1.0 / sf[valid]
+    x0, y0 = x.mean(), y.mean()
+    A = np.stack([np.ones_like(x), x - x0, y - y0], axis=1) * w[:, None]
+    b = f[valid] * w
+    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    rms = float(np.sqrt(np.mean((A @ coef - b) ** 2)))
+    if not rms <= PLANE_FIT:
+        return None
+    cov = np.linalg.inv(A.T @ A) * max(rms, 1.0) ** 2
+    H, W = valid.shape
+    block = (np.minimum(y * JACKKNIFE_BLOCKS // H, JACKKNIFE_BLOCKS - 1) * JACKKNIFE_BLOCKS
+             + np.minimum(x * JACKKNIFE_BLOCKS // W, JACKKNIFE_BLOCKS - 1)).astype(int)
+    present = np.unique(block)
+    if present.size >= 4:
+        AtA, Atb = A.T @ A, A.T @ b
+        leave = []
+        for k in present:
+            Ak, bk = A[block == k], b[block == k]
+            leave.append(np.linalg.solve(AtA - Ak.T @ Ak, Atb - Ak.T @ bk))
+        leave = np.array(leave)
+        g = present.size
+        jack = (g - 1) / g * (leave - leave.mean(axis=0)).T @ (leave - leave.mean(axis=0))
+        cov = np.where(np.diag(jack)[:, None] * np.diag(jack)[None, :] > np.diag(cov)[:, None] * np.diag(cov)[None, :],
+                       jack, cov)
+    shift = np.array([[1.0, -x0, -y0], [0, 1, 0], [0, 0, 1]])
+    return shift @ coef, shift @ cov @ shift.T
+
+
+def fit_surface(P: np.ndarray, camera_position: np.ndarray, rays: np.ndarray, *, model: RangeModel | None = None,
+                valid: np.ndarray | None = None) -> FittedSurface:
+    """Normals of the surface fitted to the range image ``P`` (see the module docstring).
+
+    Parameters
+    ----------
+    P : ndarray, shape (H, W, 3)
+        World positions, metres; NaN where no surface.
+    camera_position : ndarray, shape (3,)
+    rays : ndarray, shape (H, W, 3)
+        Unit rays through the pixel centres (a pinhole's).
+    model : RangeModel, optional
+        The range's error; default: :func:`measured_range`.
+    valid : ndarray of bool, shape (H, W), optional
+        Pixels with a position (default: finite ``P``).
+
+    Returns
+    -------
+    FittedSurface
+    """
+    P = np.asarray(P, dtype=float)
+    cam = np.asarray(camera_position, dtype=float)
+    valid = np.all(np.isfinite(P), axis=-1) if valid is None else valid
+    H, W = valid.shape
+    M = pinhole_matrix(rays)
+    axis = optical_axis(M)
+    rel = np.where(valid[..., None], P - cam, 0.0)
+    z = rel @ axis
+    valid = valid & (z > 0)
+    if model is None:
+        model = measured_range(P, cam, valid, axis)
+    zs = np.where(valid, z, 1.0)
+    dist = np.linalg.norm(rel, axis=-1)
+    # the depth's noise along z: along the ray it is foreshortened by z/d
+    to_z = 1.0 if model.axis == "z" else np.where(valid, zs / np.maximum(dist, 1e-300), 1.0)
+    floor = FLOAT32_FLOOR * float(np.max(np.abs(P[valid]))) if valid.any() else 0.0
+    sz = np.hypot(model.equivalent_sigma_m * to_z, floor)
+    f = np.where(valid, 1.0 / zs, 0.0)
+    sf = sz / zs**2  # the inverse depth's standard deviation
+    rr, cc = np.meshgrid(np.arange(H) + 0.5, np.arange(W) + 0.5, indexing="ij")
+
+    # per pixel: f's value and gradient (per pixel) at the centre, the gradient's s.d. per component, the window
+    fit = np.full((H, W, 4), np.nan)
+    half = np.zeros((H, W), int)
+    plane = _one_plane(f, sf, valid, cc, rr)
+    if plane is not None:
+        (a, b, c), cov = plane
+        fit[valid] = np.stack([a + b * cc[valid] + c * rr[valid], np.full(valid.sum(), b), np.full(valid.sum(), c),
+                               np.full(valid.sum(), np.sqrt(0.5 * (cov[1, 1] + cov[2, 2])))], axis=-1)
+        half[valid] = -1
+    else:
+        _windows(f, sf, valid, model, zs, fit, half)
+    done = np.isfinite(fit[..., 0])
+    N = np.full((H, W, 3), np.nan)
+    sd = np.full((H, W), np.nan)
+    f0, gc, gr, sg = fit[done].T
+    x, y = cc[done], rr[done]
+    n0 = _normal(M, f0, gc, gr, x, y)
+    # each tilt's standard deviation: the angle a one-s.d. change of each gradient component turns the normal by
+    turn = [np.arccos(np.clip(np.sum(n0 * _normal(M, f0, gc + dc * sg, gr + dr * sg, x, y), axis=-1), -1.0, 1.0))
+            for dc, dr in ((1.0, 0.0), (0.0, 1.0))]
+    N[done], sd[done] = n0, np.hypot(*turn)
+    flip = np.sum(np.nan_to_num(N) * -rel, axis=-1) < 0
+    N[flip] = -N[flip]
+    # the fitted inverse depth on each pixel's ray: M·[c, r, 1] has depth 1 along the axis (pinhole_matrix's scale)
+    Pf = np.full((H, W, 3), np.nan)
+    Pf[done] = cam + np.stack([x, y, np.ones_like(x)], axis=-1) @ M.T / f0[:, None]
+    if plane is None:
+        view = -rel / np.maximum(dist, 1e-300)[..., None]
+        # where the inverse depth bends towards a silhouette's singularity: grazing, and near the silhouette
+        # for the window the pixel took
+        edge = distance_transform_cdt(valid, metric="chessboard")
+        grazing = done & (np.sum(np.nan_to_num(N) * view, axis=-1) < GRAZING) & (edge <= 2 * np.abs(half) + 4)
+        if grazing.any():
+            N[grazing] = _tangent_fit(P, valid, N, grazing, np.clip(half[grazing], 2, TANGENT_MAX))
+            Pf[grazing] = P[grazing]  # the inverse depth's value is what bends there: keep the measured point
+    return FittedSurface(P=Pf, N=N, sd_rad=sd, half_width=half, model=model, plane=plane is not None)
+
+
+#: The monomials ``Δc^a Δr^b`` of each degree, split by parity in ``Δc`` and ``Δr``: over a window symmetric about
+#: its centre the blocks are orthogonal, so each is fitted alone.
+BLOCKS = {
+    2: (((0, 0), (2, 0), (0, 2)), ((1, 0),), ((0, 1),), ((1, 1),)),
+    3: (((0, 0), (2, 0), (0, 2)), ((1, 0), (3, 0), (1, 2)), ((0, 1), (0, 3), (2, 1)), ((1, 1),)),
+}
+
+
+def _family() -> list[tuple[int, int, list[tuple[tuple[tuple[int, int], ...], np.ndarray]], float]]:
+    """The windows and degrees the ICI runs through: ``(half-width, degree, [(block, G⁻¹)], k)``, ``k`` the centre
+    gradient's standard deviation per unit noise, sorted by ``k`` falling (the least biased, noisiest first).
+
+    ``G`` is a block's Gram matrix over the whole ``(2w+1)²`` window, the same for every window of that size.
+    """
+    out = []
+    for w in HALF_WIDTHS:
+        d = np.arange(-w, w + 1, dtype=float)
+        c, r = (x.ravel() for x in np.meshgrid(d, d))
+        for degree, blocks in BLOCKS.items():
+            if 2 * w + 1 <= degree:
+                continue
+            inv = []
+            for block in blocks:
+                basis = np.stack([c**a * r**b for a, b in block])
+                inv.append((block, np.linalg.inv(basis @ basis.T)))
+            out.append((w, degree, inv, float(np.sqrt(inv[1][1][0, 0]))))
+    return sorted(out, key=lambda x: -x[3])
+
+
+FAMILY = _family()
+
+
+class _Lazy(dict):
+    """A dict that computes a missing key's value once, by ``make(key)``."""
+
+    def __init__(self, make: Callable[[tuple[int, int]], np.ndarray]) -> None:
+        super().__init__()
+        self.make = make
+
+    def __missing__(self, key: tuple[int, int]) -> np.ndarray:
+        self[key] = value = self.make(key)
+        return value
+
+
+def _windows(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, model: RangeModel, zs: np.ndarray,
+             fit: np.ndarray, half: np.ndarray) -> None:
+    """Fill ``fit`` (value, gradient per pixel along columns and rows, the gradient's s.d.) and ``half`` by the ICI
+    over :data:`FAMILY`.
+
+    Each pixel uses the whole window of each size nearest to it that contains
+    it (its own, centred, when whole; else one shifted inwards from an edge,
+    a hole or a silhouette, by at most ``w``), and evaluates that window's
+    polynomial at its own offset ``δ`` from the window's centre, with the
+    standard deviation of the gradient there.
+    """
+    from math import comb
+
+    H, W = valid.shape
+    ref = float(np.mean(f[valid]))
+    g = np.where(valid, f - ref, 0.0)
+    rr, cc = np.meshgrid(np.arange(H) - H / 2, np.arange(W) - W / 2, indexing="ij")  # centred, for precision
+    raw = {(p, q): _sat(g * cc**p * rr**q) for p in range(4) for q in range(4 - p)}
+    count = _sat(valid.astype(float))
+    lo = np.full((H, W, 2), -np.inf)
+    hi = np.full((H, W, 2), np.inf)
+    alive = valid.copy()
+    nearest: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for w, degree, blocks, _ in FAMILY:
+        if 2 * w + 1 > min(H, W):
+            continue
+        if w not in nearest:
+            k_ = 2 * w + 1
+            whole = np.zeros((H, W), bool)
+            whole[w:H - w, w:W - w] = np.rint(count[k_:, k_:] - count[:-k_, k_:] - count[k_:, :-k_]
+                                               + count[:-k_, :-k_]) == k_ * k_
+            if not whole.any():
+                nearest[w] = (np.zeros((H, W), int) + w + 1, np.zeros((2, H, W), int))
+            else:
+                nearest[w] = distance_transform_cdt(~whole, metric="chessboard", return_indices=True)
+        dist, (ci, cj) = nearest[w]
+        rows, cols = np.nonzero(alive & (dist <= w))
+        if not rows.size:
+            continue
+        r0, c0_ = ci[rows, cols], cj[rows, cols]  # the window's centre
+        dc, dr = (cols - c0_).astype(float), (rows - r0).astype(float)
+        j0, i0 = cc[r0, c0_], rr[r0, c0_]
+        box = _Lazy(lambda pq: _box(raw[pq], w, r0, c0_))
+
+        def moment(a_: int, b_: int) -> np.ndarray:
+            """Σ Δc^a Δr^b g over each window, from the raw sums about the image centre."""
+            return sum(comb(a_, p) * comb(b_, q) * (-j0) ** (a_ - p) * (-i0) ** (b_ - q) * box[p, q]
+                       for p in range(a_ + 1) for q in range(b_ + 1))
+
+        value = np.full(rows.size, ref)
+        grad = np.zeros((2, rows.size))
+        var = np.zeros((2, rows.size))
+        for block, inv in blocks:
+            coef = inv @ np.stack([moment(a, b) for a, b in block])  # (len(block), n)
+            value += sum(coef[m] * dc**a * dr**b for m, (a, b) in enumerate(block))
+            for axis in (0, 1):  # d/dΔc, d/dΔr of each monomial at δ
+                u = np.stack([(a * dc ** max(a - 1, 0) * dr**b) if axis == 0 else (b * dc**a * dr ** max(b - 1, 0))
+                              for a, b in block])
+                grad[axis] += np.sum(coef * u, axis=0)
+                var[axis] += np.einsum("mn,mk,kn->n", u, inv, u)
+        gc, gr = grad
+        sfp = sf[rows, cols]
+        t = np.stack([gc, gr], axis=-1) / value[:, None]
+        s = sfp[:, None] * np.sqrt(var.T) / np.abs(value)[:, None]
+        if model.quantum_m > 0:
+            # a window over fewer than STEPS_PER_WINDOW steps of the local slope reads the terrace, not the slope
+            young = np.hypot(gc, gr) * (2 * w + 1) * zs[rows, cols] ** 2 / model.quantum_m < STEPS_PER_WINDOW
+        else:
+            young = np.zeros(rows.size, bool)
+        lo_k, hi_k = np.maximum(lo[rows, cols], t - GAMMA * s), np.minimum(hi[rows, cols], t + GAMMA * s)
+        meets = np.all(lo_k <= hi_k, axis=-1) | young
+        keep = meets & ~young
+        lo[rows[keep], cols[keep]], hi[rows[keep], cols[keep]] = lo_k[keep], hi_k[keep]
+        fit[rows[meets], cols[meets]] = np.stack([value, gc, gr, sfp * np.sqrt(var.mean(axis=0))], axis=-1)[meets]
+        half[rows[meets], cols[meets]] = w
+        alive[rows[~meets], cols[~meets]] = False
+
+
+def _tangent_fit(P: np.ndarray, valid: np.ndarray, N: np.ndarray, where: np.ndarray, half: np.ndarray,
+                 iterations: int = 2) -> np.ndarray:
+    """Normals at the pixels ``where`` from a quadric height field over each one's tangent plane, shape ``(n, 3)``.
+
+    Near a silhouette the inverse depth over the pixel grid is no polynomial
+    (it has a square-root singularity at the limb), so a grazing pixel's
+    window is refitted in 3-D: heights along its current normal over the
+    plane across it, ``h = c₀ + c₁u + c₂v + c₃u² + c₄uv + c₅v²`` over the
+    ``(2w+1)²`` pixels around it (``w`` = ``half``), and the normal of that
+    quadric at the pixel; twice, the second time in the first fit's frame.
+    Range noise along a grazing ray lies nearly in that plane, so it moves
+    the points along the surface more than off it.
+    """
+    H, W = valid.shape
+    rows, cols = np.nonzero(where)
+    out = N[rows, cols].copy()
+    for wv in np.unique(half):
+        sel = np.flatnonzero(half == wv)
+        d = np.arange(-wv, wv + 1)
+        di, dj = (x.ravel() for x in np.meshgrid(d, d, indexing="ij"))
+        ri = np.clip(rows[sel, None] + di, 0, H - 1)
+        cj = np.clip(cols[sel, None] + dj, 0, W - 1)
+        ok = valid[ri, cj] & (np.abs(rows[sel, None] + di - ri) + np.abs(cols[sel, None] + dj - cj) == 0)
+        Q = np.where(ok[..., None], P[ri, cj] - P[rows[sel], cols[sel]][:, None, :], 0.0)
+        n = out[sel]
+        for _ in range(iterations):
+            e1 = np.cross(n, np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
+            e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
+            e2 = np.cross(n, e1)
+            u, v, h = (np.einsum("pkx,px->pk", Q, e) for e in (e1, e2, n))
+            scale = np.sqrt(np.sum(ok * (u * u + v * v), axis=1, keepdims=True) / np.maximum(ok.sum(1, keepdims=True), 1))
+            u, v = u / scale, v / scale
+            A = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1) * ok[..., None]
+            G = np.einsum("pki,pkj->pij", A, A)
+            good = ok.sum(1) >= 8
+            G[~good] = np.eye(6)
+            coef = np.linalg.solve(G, np.einsum("pki,pk->pi", A, h * ok)[..., None])[..., 0]
+            # the quadric's normal at the pixel itself (u = v = 0): the gradient is (c1, c2) per unit of u/scale
+            m = n - (coef[:, 1:2] * e1 + coef[:, 2:3] * e2) / scale
+            m /= np.linalg.norm(m, axis=-1, keepdims=True)
+            n = np.where(good[:, None], m, n)
+        out[sel] = n
+    return out

@@ -1,0 +1,165 @@
+"""The fitted-surface geometry stage (nearlight.estimator.surfaces) on closed-form captures, no Mitsuba.
+
+Every capture is ``analytic_capture``'s board or sphere (exact ``P`` and
+``N``, float32 as the generator writes them), its range perturbed by
+``generator.range_sensor.perturb_range``. Golden values were measured at
+main c2f4361 with this change (the numbers in each test's comment); each
+tolerance is a stated multiple of the measured value or a limit the
+physics sets (float32 precision).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nearlight.estimator.full import full_estimate
+from nearlight.estimator.geometry import capture_rays
+from nearlight.estimator.normals import normals_from_positions
+from nearlight.estimator.surfaces import RangeModel, fit_surface, optical_axis, pinhole_matrix
+from nearlight.evaluation.scoring.metrics import highlight_point, lamp_position_error_pct
+from nearlight.generator.analytic import DEFAULT_LAMP_POSITION, analytic_capture
+from nearlight.generator.range_sensor import perturb_range
+
+
+def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle between unit vectors, radians (atan2 of |a×b| and a·b: exact to rounding near 0, where arccos is not)."""
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
+
+
+@pytest.fixture(scope="module")
+def board():
+    return analytic_capture(shape="board", width=160, height=120)
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    return analytic_capture(shape="sphere", width=160, height=120)
+
+
+def _fit(clean, **range_error):
+    """The capture with its range perturbed (N dropped), and the surface fitted to it."""
+    cap = perturb_range(clean, **range_error).replace(N=None)
+    return cap, fit_surface(cap.P, clean.camera.position, capture_rays(clean))
+
+
+def _lamp_error(clean, cap, fitted=None) -> float:
+    origin = highlight_point(clean.P, clean.N, clean.camera.position, DEFAULT_LAMP_POSITION)
+    est = full_estimate(cap if fitted is None else cap.replace(P=fitted.P.astype(np.float32), N=fitted.N))
+    return lamp_position_error_pct(est.lamp_position, DEFAULT_LAMP_POSITION, origin=origin)
+
+
+def test_pinhole_matrix_gives_the_cameras_rays_and_axis(board):
+    rays = capture_rays(board)
+    M = pinhole_matrix(rays)
+    rr, cc = np.meshgrid(np.arange(board.height) + 0.5, np.arange(board.width) + 0.5, indexing="ij")
+    R = np.stack([cc, rr, np.ones_like(cc)], axis=-1) @ M.T
+    # float64 rays from the camera's own formula: a direct linear transform of them is exact to rounding
+    assert np.max(_angles(R / np.linalg.norm(R, axis=-1, keepdims=True), rays)) < 1e-9
+    assert optical_axis(M) @ np.asarray(board.camera.to_world)[:3, 2] == pytest.approx(1.0, abs=1e-12)
+
+
+def test_noise_free_board_is_one_plane_and_exact(board):
+    _, fs = _fit(board)
+    assert fs.plane
+    # the fitted points lie on the rays of the camera: float32 P's rounding only (~3e-8 m at 0.5 m)
+    assert np.nanmax(np.abs(fs.P - board.P)) < 1e-6
+    ok = board.surface_mask
+    assert np.all(np.isfinite(fs.N[ok]))
+    # float32 P (relative precision 6e-8 over a 0.4 m board) limits the plane's normal to ~1e-7 rad
+    assert np.max(_angles(fs.N[ok], board.N[ok])) < 1e-5
+
+
+def test_windows_are_exact_on_a_plane_at_every_size(board, monkeypatch):
+    """With the whole-plane test off, every window the ICI picks is exact on a plane (inverse depth is affine in
+    the pixel coordinates), at the board's edges (shifted windows) too."""
+    import nearlight.estimator.surfaces as surfaces
+
+    monkeypatch.setattr(surfaces, "_one_plane", lambda *a: None)
+    _, fs = _fit(board, sigma_m=1e-3, seed=1)  # noisy enough that windows grow wide ...
+    _, exact = _fit(board)
+    # ... and the noise-free board's normals, from the small windows the float32 floor allows, exact
+    ok = board.surface_mask
+    assert np.max(_angles(exact.N[ok], board.N[ok])) < 1e-4  # measured 2.1e-6 rad
+    assert np.max(fs.half_width[ok]) >= 16
+
+
+def test_noise_free_sphere_normals_beat_plane_fits(sphere):
+    _, fs = _fit(sphere)
+    ok = sphere.surface_mask & np.isfinite(fs.N[..., 0])
+    new = np.degrees(_angles(fs.N[ok], sphere.N[ok]))
+    old = np.degrees(_angles(normals_from_positions(sphere.P, sphere.camera.position)[ok], sphere.N[ok]))
+    # measured at 160x120: median 0.0021 deg (3x3 plane fits: 0.022 deg); p99 0.05 deg (plane fits: 0.5 deg)
+    assert np.median(new) < 0.005
+    assert np.median(new) < np.median(old) / 4
+    assert np.percentile(new, 99) < np.percentile(old, 99) / 4
+
+
+@pytest.mark.parametrize(
+    ("error", "expected"),
+    [
+        ({"sigma_m": 2e-4}, RangeModel(sigma_m=2e-4, axis="ray")),
+        ({"quantum_m": 1e-3, "axis": "z"}, RangeModel(quantum_m=1e-3, axis="z")),
+        ({"quantum_m": 2e-4, "axis": "z"}, RangeModel(quantum_m=2e-4, axis="z")),
+        ({"quantum_m": 1e-3, "axis": "ray"}, RangeModel(quantum_m=1e-3, axis="ray")),
+    ],
+    ids=["gauss-0.2mm", "z-1mm", "z-0.2mm", "ray-1mm"],
+)
+@pytest.mark.parametrize("shape", ["board", "sphere"])
+def test_the_range_error_is_read_off_P(shape, error, expected, request):
+    clean = request.getfixturevalue(shape)
+    _, fs = _fit(clean, seed=3, **error)
+    got = fs.model
+    assert got.axis == expected.axis
+    # quanta: float32 P recomputed as depth, ~1e-7 relative; noise: a median over ~10^4 fourth differences, ~2 %
+    assert got.quantum_m == pytest.approx(expected.quantum_m, rel=1e-4, abs=1e-9)
+    assert got.sigma_m == pytest.approx(expected.sigma_m, rel=0.06, abs=1e-9)
+
+
+def test_noise_free_ranges_are_not_taken_for_quantised(board, sphere):
+    for clean in (board, sphere):
+        _, fs = _fit(clean)
+        assert fs.model.quantum_m == 0.0
+        assert fs.model.sigma_m < 1e-7  # float32 rounding only
+
+
+def test_normal_uncertainty_is_calibrated_on_a_noisy_sphere(sphere):
+    """Errors over their predicted standard deviation: for an unbiased 2-D Gaussian tilt whose two s.d. are
+    summed in quadrature, median |error| / sd = 1.1774 / √2 = 0.83. Measured over seeds 0-3 at 0.2 mm:
+    0.94-1.03 (the ICI's windows carry a bias up to about Γ·s), and 1.11-1.20 at 1 mm."""
+    ratios = []
+    for seed in range(3):
+        _, fs = _fit(sphere, sigma_m=2e-4, seed=seed)
+        ok = np.isfinite(fs.sd_rad) & sphere.surface_mask
+        ratios.append(np.median(_angles(fs.N[ok], sphere.N[ok]) / fs.sd_rad[ok]))
+    assert 0.6 < np.median(ratios) < 1.4
+
+
+def test_a_quantised_planes_uncertainty_covers_its_error(board):
+    """The staircase's errors are correlated over each terrace; the block jackknife's covariance keeps the error
+    within a few standard deviations (independent-noise covariance alone: 3-17 s.d. at 1 mm along z)."""
+    ratios = []
+    for seed in range(4):
+        _, fs = _fit(board, quantum_m=1e-3, axis="z", seed=seed)
+        ok = board.surface_mask
+        ratios.append(np.median(_angles(fs.N[ok], board.N[ok]) / fs.sd_rad[ok]))
+    assert max(ratios) < 5.0  # measured 2.2-4.0 at 160x120
+
+
+@pytest.mark.parametrize(
+    ("shape", "error", "limit", "old_at_least"),
+    [
+        # full's lamp error with the fitted points and normals, measured at 320x240 (seed 0): board 1 mm along z
+        # 0.054 % (today's normals: 28 %); board 0.2 mm Gaussian 0.002 % (2.7 %); noise-free sphere 0.0047 %
+        # (0.49 %: the issue's target is 0.05 %)
+        ("board", {"quantum_m": 1e-3, "axis": "z"}, 0.3, 10.0),
+        ("board", {"sigma_m": 2e-4}, 0.02, 1.0),
+        ("sphere", {}, 0.05, 0.2),
+    ],
+    ids=["board-z-1mm", "board-gauss-0.2mm", "sphere-exact"],
+)
+def test_full_with_fitted_normals(shape, error, limit, old_at_least):
+    clean = analytic_capture(shape=shape, width=320, height=240)
+    cap, fs = _fit(clean, seed=0, **error)
+    assert _lamp_error(clean, cap, fs) < limit
+    assert _lamp_error(clean, cap) > old_at_least  # today's normals: what the stage replaces
