@@ -1,4 +1,10 @@
-"""Surface normals fitted to the range data: inverse depth over the pixel grid, a support the noise and the data choose.
+"""Surface points and normals fitted to the range data: one surface where one fits, else windows the noise chooses.
+
+Staged for issue 34: tested (``tests/estimator/test_surfaces.py``) and
+measured (``benchmarks/bench_surfaces.py``), not yet what
+:class:`~nearlight.estimator.observation.Observation` uses (that change
+regenerates every committed report, so it lands with the capture's
+``rig.range`` and the bound's report columns).
 
 Why inverse depth over pixels
 -----------------------------
@@ -30,11 +36,19 @@ bias shows against the noise. A noise-free range keeps small windows (exact
 on planes, unbiased to second order on curves); a noisy one widens as far
 as the surface stays a quadratic.
 
-A whole plane
--------------
+A whole plane, a whole quadric
+------------------------------
 When one plane fits every surface pixel within the noise (:func:`_one_plane`),
 every normal is that plane's: a board is one plane over all its pixels,
-also at its edges, where no centred window is whole.
+also at its edges, where no centred window is whole. Otherwise, when one
+quadric does (:func:`_one_quadric`, Taubin's fit: a sphere, a cylinder, a
+cone), every point and normal is the quadric's where each pixel's ray meets
+it. Only when neither fits within the noise (a bent plate, a torus, a real
+object) are the normals local, per pixel, as below. This is model
+selection by the data, not knowledge of the scene: a sphere's 10 quadric
+coefficients fixed by 10⁴–10⁵ range pixels give its normals to hundredths
+of a degree at 0.2 mm of noise, which no local window can (its bound,
+:mod:`nearlight.evaluation.scoring.crlb_range`, takes the same family).
 
 Quantisation
 ------------
@@ -76,6 +90,8 @@ PIXELS_PER_LEVEL = 4
 MAX_DIVISOR = 16
 #: Spatial blocks (per side) of the jackknife that gives a whole plane's covariance (:func:`_one_plane`).
 JACKKNIFE_BLOCKS = 4
+#: The whole-quadric jackknife evaluates its replicates on every this-many-th row and column.
+JACKKNIFE_STEP = 3
 #: A plane fits the whole surface when its residual RMS is within this factor of the noise.
 PLANE_FIT = 1.5
 
@@ -245,11 +261,12 @@ class FittedSurface:
         radians (the two tilts' in quadrature); NaN where no fit.
     half_width : ndarray of int, shape (H, W)
         Half-width of the window each normal came from (0: no window; −1:
-        the whole plane).
+        the whole plane; −2: the whole quadric).
     model : RangeModel
         The range error the fit assumed.
-    plane : bool
-        Whether one plane fitted the whole surface.
+    kind : {"plane", "quadric", "local"}
+        One plane fitted the whole surface, one quadric did, or neither
+        (windows per pixel).
     """
 
     P: np.ndarray
@@ -257,7 +274,12 @@ class FittedSurface:
     sd_rad: np.ndarray
     half_width: np.ndarray
     model: RangeModel
-    plane: bool
+    kind: str
+
+    @property
+    def plane(self) -> bool:
+        """Whether one plane fitted the whole surface."""
+        return self.kind == "plane"
 
 
 def _one_plane(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, cc: np.ndarray, rr: np.ndarray
@@ -346,6 +368,12 @@ def fit_surface(P: np.ndarray, camera_position: np.ndarray, rays: np.ndarray, *,
     fit = np.full((H, W, 4), np.nan)
     half = np.zeros((H, W), int)
     plane = _one_plane(f, sf, valid, cc, rr)
+    if plane is None:
+        quadric = _one_quadric(P, valid, rays, cam, model, floor)
+        if quadric is not None:
+            Pq, Nq, sdq = quadric
+            half = np.where(valid, -2, 0)
+            return FittedSurface(P=Pq, N=Nq, sd_rad=sdq, half_width=half, model=model, kind="quadric")
     if plane is not None:
         (a, b, c), cov = plane
         fit[valid] = np.stack([a + b * cc[valid] + c * rr[valid], np.full(valid.sum(), b), np.full(valid.sum(), c),
@@ -377,7 +405,8 @@ def fit_surface(P: np.ndarray, camera_position: np.ndarray, rays: np.ndarray, *,
         if grazing.any():
             N[grazing] = _tangent_fit(P, valid, N, grazing, np.clip(half[grazing], 2, TANGENT_MAX))
             Pf[grazing] = P[grazing]  # the inverse depth's value is what bends there: keep the measured point
-    return FittedSurface(P=Pf, N=N, sd_rad=sd, half_width=half, model=model, plane=plane is not None)
+    return FittedSurface(P=Pf, N=N, sd_rad=sd, half_width=half, model=model,
+                         kind="local" if plane is None else "plane")
 
 
 #: The monomials ``Δc^a Δr^b`` of each degree, split by parity in ``Δc`` and ``Δr``: over a window symmetric about
@@ -545,3 +574,145 @@ def _tangent_fit(P: np.ndarray, valid: np.ndarray, N: np.ndarray, where: np.ndar
             n = np.where(good[:, None], m, n)
         out[sel] = n
     return out
+
+
+def _quadric_design(u: np.ndarray) -> np.ndarray:
+    """Rows ``[x², y², z², xy, xz, yz, x, y, z, 1]`` of the points ``u`` (n, 3), shape (n, 10)."""
+    x, y, z = u.T
+    return np.stack([x * x, y * y, z * z, x * y, x * z, y * z, x, y, z, np.ones_like(x)], axis=1)
+
+
+def _gradient_selectors() -> np.ndarray:
+    """``S`` (3, 10, 10) with each gradient row ``∂D/∂x_i = D·S[i]``: every entry of the gradient of a monomial of
+    degree ≤ 2 is a monomial of degree ≤ 1, itself a column of ``D`` (so ``Σ GᵢᵀGᵢ = Sᵢᵀ (DᵀD) Sᵢ``)."""
+    S = np.zeros((3, 10, 10))
+    x, y, z, one = 6, 7, 8, 9  # the columns of x, y, z and 1 in D
+    for i, col in enumerate((x, y, z)):
+        S[i, col, i] = 2.0  # ∂(x_i²) = 2 x_i
+        S[i, one, 6 + i] = 1.0  # ∂(x_i) = 1
+    # the cross terms xy, xz, yz (columns 3, 4, 5)
+    S[0, y, 3], S[1, x, 3] = 1.0, 1.0
+    S[0, z, 4], S[2, x, 4] = 1.0, 1.0
+    S[1, z, 5], S[2, y, 5] = 1.0, 1.0
+    return S
+
+
+GRADIENT = _gradient_selectors()
+
+
+def _taubin(Mm: np.ndarray, Nm: np.ndarray) -> np.ndarray | None:
+    """Taubin's quadric: the generalised eigenvector of ``(Σ DᵀD, Σ GᵀG)`` of the smallest finite eigenvalue."""
+    import scipy.linalg
+
+    with np.errstate(all="ignore"):
+        vals, vecs = scipy.linalg.eig(Mm, Nm)
+    vals = np.real(vals)
+    ok = np.isfinite(vals) & (vals > -1e-9 * max(float(np.trace(Mm)), 1e-300))
+    if not ok.any():
+        return None
+    a = np.real(vecs[:, np.flatnonzero(ok)[np.argmin(vals[ok])]])
+    return a / np.linalg.norm(a)
+
+
+def _quadric_surface(a: np.ndarray, o: np.ndarray, rays: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where each ray ``o + τ r`` (scaled coordinates) meets the quadric ``a`` nearest ``τ = tau``, and the unit
+    gradient there: ``(τ, normal)``, NaN where it misses."""
+    A = np.array([[a[0], a[3] / 2, a[4] / 2], [a[3] / 2, a[1], a[5] / 2], [a[4] / 2, a[5] / 2, a[2]]])
+    b, c = a[6:9], a[9]
+    qa = np.einsum("ni,ij,nj->n", rays, A, rays)
+    qb = 2 * rays @ (A @ o) + rays @ b
+    qc = o @ A @ o + b @ o + c
+    with np.errstate(invalid="ignore", divide="ignore"):
+        disc = np.sqrt(np.where(qb * qb - 4 * qa * qc >= 0, qb * qb - 4 * qa * qc, np.nan))
+        q = -0.5 * (qb + np.copysign(disc, qb))
+        roots = np.stack([q / qa, qc / q])  # both roots, stable
+    pick = np.argmin(np.abs(np.nan_to_num(roots, nan=np.inf) - tau), axis=0)
+    t = roots[pick, np.arange(len(tau))]
+    u = o + t[:, None] * rays
+    g = 2 * u @ A + b
+    return t, g / np.linalg.norm(g, axis=1, keepdims=True)
+
+
+def _one_quadric(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndarray, model: RangeModel,
+                 floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Points, normals and the normals' s.d. of one quadric surface (sphere, cylinder, cone, ellipsoid) through
+    every valid pixel, when it fits within :data:`PLANE_FIT` × the range noise along the normal (a robust scale of
+    the residuals); else None.
+
+    Taubin's fit (G. Taubin, TPAMI 13(11), 1991: the algebraic residual
+    over its gradient, to first order the geometric distance), its
+    residuals the Sampson distances ``f/|∇f|``, their noise the range
+    error's component along the normal (along the ray: ``σ·|n·r|``; along
+    ``z``: ``σ·|n·r| / (r·axis)``). The normals' s.d. is a delete-one-block
+    jackknife over :data:`JACKKNIFE_BLOCKS`² spatial blocks (the sums of the
+    eigenproblem are additive, so each replicate costs one 10 × 10 solve).
+    A plane must be tested before (:func:`_one_plane`): it is a degenerate
+    quadric, every plane pair through it fitting as well.
+    """
+    H, W = valid.shape
+    if valid.sum() < 50:
+        return None
+    X = P[valid]
+    ref = X.mean(axis=0)
+    scale = float(np.sqrt(np.mean(np.sum((X - ref) ** 2, axis=1))))
+    u = (X - ref) / scale
+    D = _quadric_design(u)
+    rows, cols = np.nonzero(valid)
+    block = (np.minimum(rows * JACKKNIFE_BLOCKS // H, JACKKNIFE_BLOCKS - 1) * JACKKNIFE_BLOCKS
+             + np.minimum(cols * JACKKNIFE_BLOCKS // W, JACKKNIFE_BLOCKS - 1))
+    present = np.unique(block)
+    Mb = np.stack([D[block == k].T @ D[block == k] for k in present])
+    Nb = np.einsum("iab,kac,icd->kbd", GRADIENT, Mb, GRADIENT)
+    a = _taubin(Mb.sum(0), Nb.sum(0))
+    if a is None:
+        return None
+    o = (cam - ref) / scale
+    r = rays[valid]
+    tau_meas = np.linalg.norm(X - cam, axis=1) / scale
+    f = D @ a
+    grad = np.stack([D @ (GRADIENT[i] @ a) for i in range(3)], axis=1)
+    n = grad / np.maximum(np.linalg.norm(grad, axis=1, keepdims=True), 1e-300)
+    dist = f / np.maximum(np.linalg.norm(grad, axis=1), 1e-300) * scale  # Sampson distance, metres
+    along = np.abs(np.sum(n * r, axis=1))
+    if model.axis == "z":
+        axis = optical_axis(pinhole_matrix(rays))
+        along = along / np.maximum(r @ axis, 1e-12)
+    sigma_n = np.hypot(model.equivalent_sigma_m * along, floor)
+    # a robust scale (1.4826·median|d/σ|: 1 for Gaussian residuals) rather than the RMS: near a silhouette σ·|n·r|
+    # is tiny, and there the first-order Sampson distance is least exact
+    if not 1.4826 * np.median(np.abs(dist / sigma_n)) <= PLANE_FIT:
+        return None
+    t, N = _quadric_surface(a, o, r, tau_meas)
+    # a ray that grazes the silhouette may miss the fitted quadric by a hair: its measured point, and the quadric's
+    # gradient there
+    miss = ~np.isfinite(t)
+    t[miss], N[miss] = tau_meas[miss], n[miss]
+    # the jackknife's replicates on every JACKKNIFE_STEP-th row and column; each pixel takes its nearest such
+    # pixel's s.d. (the s.d. of a whole-surface fit varies over many pixels, not from one to the next)
+    lattice = np.zeros(valid.shape, bool)
+    lattice[::JACKKNIFE_STEP, ::JACKKNIFE_STEP] = True
+    lattice &= valid
+    if not lattice.any():
+        lattice = valid
+    on = lattice[valid]
+    turns = []
+    for k in range(len(present)):
+        ak = _taubin(Mb.sum(0) - Mb[k], Nb.sum(0) - Nb[k])
+        if ak is None:
+            return None
+        tk, Nk = _quadric_surface(ak, o, r[on], tau_meas[on])
+        Nk[~np.isfinite(tk)] = N[on][~np.isfinite(tk)]
+        turns.append(Nk * np.sign(np.sum(Nk * N[on], axis=1, keepdims=True)))
+    turns = np.stack(turns)
+    g = len(present)
+    spread = turns - turns.mean(axis=0)
+    sd_lattice = np.full(valid.shape, np.nan)
+    sd_lattice[lattice] = np.sqrt((g - 1) / g * np.sum(spread**2, axis=(0, 2)))
+    near = distance_transform_cdt(~lattice, metric="chessboard", return_indices=True)[1]
+    sd = sd_lattice[near[0], near[1]][valid]
+    N = np.where((np.sum(N * r, axis=1) > 0)[:, None], -N, N)
+    Pq = np.full(P.shape, np.nan)
+    Nq = np.full(P.shape, np.nan)
+    sdq = np.full(valid.shape, np.nan)
+    Pq[valid], Nq[valid], sdq[valid] = cam + (t * scale)[:, None] * r, N, sd
+    return Pq, Nq, sdq
