@@ -86,6 +86,14 @@ GRAZING = 0.5
 TANGENT_MAX = 6
 #: A range is quantised when its pixels share few depth levels: on average at least this many per level.
 PIXELS_PER_LEVEL = 4
+#: A lattice of depths is taken for quantisation when the measured scatter is at most this × its ``q/√12``.
+LATTICE_EXPLAINS = 2.0
+#: Range noise measured at a stride of 2 pixels is taken over stride 1's when it is this many times larger: the
+#: errors are correlated between neighbours (:func:`measured_range`).
+CORRELATED = 1.15
+#: Below this noise (metres) a range is exact as far as any sensor goes (a micrometre: 0.5 % of a light stripe's
+#: 0.2-mm step), and stride 2 reads only the surface's curvature.
+EXACT_RANGE = 1e-6
 #: Largest ratio of the smallest gap between depth levels to the step :func:`_lattice` looks for.
 MAX_DIVISOR = 16
 #: Spatial blocks (per side) of the jackknife that gives a whole plane's covariance (:func:`_one_plane`).
@@ -216,13 +224,23 @@ def measured_range(P: np.ndarray, camera_position: np.ndarray, valid: np.ndarray
     """
     from .normals import range_noise
 
+    # fourth differences of neighbours miss errors correlated over a few pixels (a staircase blurred by a
+    # sub-pixel misregistration's interpolation: the bench profile's torus reads 0.030 mm at stride 1, 0.038 mm at
+    # stride 2), which the windows' slopes see at their full size; at stride 2 a curved surface's own fourth
+    # differences grow 16-fold (the 160x120 sphere with 0.2 mm: 0.203 and 0.216 mm), so stride 2 is taken only
+    # when it reads more than CORRELATED times stride 1, on a range that is not exact
+    sigmas = [range_noise(P[::k, ::k], camera_position, valid[::k, ::k]) for k in (1, 2)]
+    sigmas = [float(x) if np.isfinite(x) else 0.0 for x in sigmas]
+    sigma = sigmas[1] if sigmas[0] > EXACT_RANGE and sigmas[1] > CORRELATED * sigmas[0] else sigmas[0]
     rel = np.where(valid[..., None], P - camera_position, 0.0)
     for name, depth in (("z", rel @ axis), ("ray", np.linalg.norm(rel, axis=-1))):
         q = _lattice(depth[valid])
-        if q > 0:
+        # a lattice is the error model only when it explains the scatter: a 0.2-mm staircase interpolated by a
+        # (0.3, 0.2)-px shift sits exactly on a 4-µm lattice (its weights are multiples of 0.02), while its
+        # scatter is that of the 0.2-mm steps
+        if q > 0 and sigma <= LATTICE_EXPLAINS * q / np.sqrt(12.0):
             return RangeModel(quantum_m=q, axis=name)
-    sigma = range_noise(P, camera_position, valid)
-    return RangeModel(sigma_m=float(sigma) if np.isfinite(sigma) else 0.0, axis="ray")
+    return RangeModel(sigma_m=sigma, axis="ray")
 
 
 def _sat(a: np.ndarray) -> np.ndarray:
@@ -261,11 +279,11 @@ class FittedSurface:
         radians (the two tilts' in quadrature); NaN where no fit.
     half_width : ndarray of int, shape (H, W)
         Half-width of the window each normal came from (0: no window; −1:
-        the whole plane; −2: the whole quadric).
+        the whole plane; −2: the whole quadric; −3: the whole sphere).
     model : RangeModel
         The range error the fit assumed.
-    kind : {"plane", "quadric", "local"}
-        One plane fitted the whole surface, one quadric did, or neither
+    kind : {"plane", "sphere", "quadric", "local"}
+        One plane fitted the whole surface, one sphere, one quadric, or none
         (windows per pixel).
     """
 
@@ -280,6 +298,33 @@ class FittedSurface:
     def plane(self) -> bool:
         """Whether one plane fitted the whole surface."""
         return self.kind == "plane"
+
+
+def _plane_in_space(P: np.ndarray, valid: np.ndarray, cam: np.ndarray, N: np.ndarray, rays: np.ndarray,
+                    model: RangeModel, floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """The whole plane's points and normals, fitted to the points in space (no camera model).
+
+    :func:`_one_plane` decides that one plane fits (its inverse depth affine
+    over the pixels); the plane itself is fitted to ``P``: the weighted
+    principal axes of the points, each weighted by the range noise across
+    the plane (:func:`_normal_noise`, with the pixel-grid fit's normals
+    ``N``), and each point moved along its own direction from the camera
+    onto it. A camera whose calibration is off moves its rays, not the
+    points the range measured.
+    """
+    X = P[valid]
+    u = (X - cam) / np.linalg.norm(X - cam, axis=1, keepdims=True)
+    w = 1.0 / _normal_noise(N[valid], u, rays, model, floor) ** 2
+    centroid = (w[:, None] * X).sum(0) / w.sum()
+    Q = X - centroid
+    n = np.linalg.eigh((w[:, None] * Q).T @ Q)[1][:, 0]
+    along = u @ n
+    Pf = np.full(P.shape, np.nan)
+    Nf = np.full(P.shape, np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Pf[valid] = X - ((Q @ n) / along)[:, None] * u
+    Nf[valid] = n
+    return Pf, Nf
 
 
 def _one_plane(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, cc: np.ndarray, rr: np.ndarray
@@ -309,12 +354,13 @@ def _one_plane(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, cc: np.ndarray,
              + np.minimum(x * JACKKNIFE_BLOCKS // W, JACKKNIFE_BLOCKS - 1)).astype(int)
     present = np.unique(block)
     if present.size >= 4:
-        AtA, Atb = A.T @ A, A.T @ b
-        leave = []
-        for k in present:
-            Ak, bk = A[block == k], b[block == k]
-            leave.append(np.linalg.solve(AtA - Ak.T @ Ak, Atb - Ak.T @ bk))
-        leave = np.array(leave)
+        # each block's normal equations by one sort and a segmented sum (not a boolean mask per block)
+        order = np.argsort(block, kind="stable")
+        starts = np.searchsorted(block[order], present)
+        As, bs = A[order], b[order]
+        AtAk = np.add.reduceat(As[:, :, None] * As[:, None, :], starts, axis=0)
+        Atbk = np.add.reduceat(As * bs[:, None], starts, axis=0)
+        leave = np.linalg.solve(AtAk.sum(0) - AtAk, (Atbk.sum(0) - Atbk)[..., None])[..., 0]
         g = present.size
         jack = (g - 1) / g * (leave - leave.mean(axis=0)).T @ (leave - leave.mean(axis=0))
         cov = np.where(np.diag(jack)[:, None] * np.diag(jack)[None, :] > np.diag(cov)[:, None] * np.diag(cov)[None, :],
@@ -369,33 +415,48 @@ def fit_surface(P: np.ndarray, camera_position: np.ndarray, rays: np.ndarray, *,
     half = np.zeros((H, W), int)
     plane = _one_plane(f, sf, valid, cc, rr)
     if plane is None:
-        quadric = _one_quadric(P, valid, rays, cam, model, floor)
-        if quadric is not None:
-            Pq, Nq, sdq = quadric
-            half = np.where(valid, -2, 0)
-            return FittedSurface(P=Pq, N=Nq, sd_rad=sdq, half_width=half, model=model, kind="quadric")
+        # the simplest family that fits within the noise: a sphere's 4 parameters before a quadric's 9
+        for kind, code, fitter in (("sphere", -3, _one_sphere), ("quadric", -2, _one_quadric)):
+            whole = fitter(P, valid, rays, cam, model, floor)
+            if whole is not None:
+                Pq, Nq, sdq = whole
+                return FittedSurface(P=Pq, N=Nq, sd_rad=sdq, half_width=np.where(valid, code, 0), model=model,
+                                     kind=kind)
     if plane is not None:
         (a, b, c), cov = plane
         fit[valid] = np.stack([a + b * cc[valid] + c * rr[valid], np.full(valid.sum(), b), np.full(valid.sum(), c),
                                np.full(valid.sum(), np.sqrt(0.5 * (cov[1, 1] + cov[2, 2])))], axis=-1)
         half[valid] = -1
     else:
-        _windows(f, sf, valid, model, zs, fit, half)
+        Xw, Nw = _windows(f, sf, valid, model, zs, P, fit, half)
     done = np.isfinite(fit[..., 0])
     N = np.full((H, W, 3), np.nan)
     sd = np.full((H, W), np.nan)
     f0, gc, gr, sg = fit[done].T
     x, y = cc[done], rr[done]
     n0 = _normal(M, f0, gc, gr, x, y)
-    # each tilt's standard deviation: the angle a one-s.d. change of each gradient component turns the normal by
-    turn = [np.arccos(np.clip(np.sum(n0 * _normal(M, f0, gc + dc * sg, gr + dr * sg, x, y), axis=-1), -1.0, 1.0))
+    N[done] = n0
+    # each tilt's standard deviation: the angle a one-s.d. change of each gradient component turns the normal by;
+    # for one plane on a lattice of pixels, each pixel taking its nearest's (it varies over the image, not per pixel)
+    at = done.copy()
+    if plane is not None:
+        at[:] = False
+        at[::JACKKNIFE_STEP, ::JACKKNIFE_STEP] = True
+        at &= done
+    pick = at[done]
+    turn = [np.arccos(np.clip(np.sum(n0[pick] * _normal(M, f0[pick], gc[pick] + dc * sg[pick], gr[pick] + dr * sg[pick],
+                                                        x[pick], y[pick]), axis=-1), -1.0, 1.0))
             for dc, dr in ((1.0, 0.0), (0.0, 1.0))]
-    N[done], sd[done] = n0, np.hypot(*turn)
+    sd[at] = np.hypot(*turn)
+    if plane is not None and at.any():
+        near = distance_transform_cdt(~at, metric="chessboard", return_indices=True)[1]
+        sd = np.where(done, sd[near[0], near[1]], np.nan)
+    if plane is None:
+        Pf, N = Xw, np.where(done[..., None], Nw, np.nan)
+    else:
+        Pf, N = _plane_in_space(P, valid, cam, N, rays, model, floor)
     flip = np.sum(np.nan_to_num(N) * -rel, axis=-1) < 0
     N[flip] = -N[flip]
-    # the fitted inverse depth on each pixel's ray: M·[c, r, 1] has depth 1 along the axis (pinhole_matrix's scale)
-    Pf = np.full((H, W, 3), np.nan)
-    Pf[done] = cam + np.stack([x, y, np.ones_like(x)], axis=-1) @ M.T / f0[:, None]
     if plane is None:
         view = -rel / np.maximum(dist, 1e-300)[..., None]
         # where the inverse depth bends towards a silhouette's singularity: grazing, and near the silhouette
@@ -453,30 +514,71 @@ class _Lazy(dict):
         return value
 
 
-def _windows(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, model: RangeModel, zs: np.ndarray,
-             fit: np.ndarray, half: np.ndarray) -> None:
+class _Field:
+    """One image ``g`` (``[H, W]``, 0 off the surface) with summed-area tables of ``g·c^p·r^q`` (``p + q ≤ 3``, made
+    when first asked for), and the window polynomials fitted to it (:meth:`poly`)."""
+
+    def __init__(self, g: np.ndarray, cc: np.ndarray, rr: np.ndarray) -> None:
+        self.raw = _Lazy(lambda pq: _sat(g * cc ** pq[0] * rr ** pq[1]))
+        self.cc, self.rr = cc, rr
+
+    def poly(self, w: int, blocks: list, r0: np.ndarray, c0: np.ndarray, dc: np.ndarray, dr: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Value, gradient ``(2, n)`` (per pixel along columns, rows) and the gradient's variance per unit noise
+        ``(2, n)`` of each window's polynomial (centred at ``(r0, c0)``, ``blocks`` as :data:`FAMILY`'s) at the
+        offsets ``(dc, dr)``."""
+        from math import comb
+
+        j0, i0 = self.cc[r0, c0], self.rr[r0, c0]
+        box = _Lazy(lambda pq: _box(self.raw[pq], w, r0, c0))
+
+        def moment(a_: int, b_: int) -> np.ndarray:
+            """Σ Δc^a Δr^b g over each window, from the raw sums about the image centre."""
+            return sum(comb(a_, p) * comb(b_, q) * (-j0) ** (a_ - p) * (-i0) ** (b_ - q) * box[p, q]
+                       for p in range(a_ + 1) for q in range(b_ + 1))
+
+        value = np.zeros(r0.size)
+        grad = np.zeros((2, r0.size))
+        var = np.zeros((2, r0.size))
+        for block, inv in blocks:
+            coef = inv @ np.stack([moment(a, b) for a, b in block])  # (len(block), n)
+            value += sum(coef[m] * dc**a * dr**b for m, (a, b) in enumerate(block))
+            for axis in (0, 1):  # d/dΔc, d/dΔr of each monomial at δ
+                u = np.stack([(a * dc ** max(a - 1, 0) * dr**b) if axis == 0 else (b * dc**a * dr ** max(b - 1, 0))
+                              for a, b in block])
+                grad[axis] += np.sum(coef * u, axis=0)
+                var[axis] += np.einsum("mn,mk,kn->n", u, inv, u)
+        return value, grad, var
+
+
+def _windows(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, model: RangeModel, zs: np.ndarray, P: np.ndarray,
+             fit: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Fill ``fit`` (value, gradient per pixel along columns and rows, the gradient's s.d.) and ``half`` by the ICI
-    over :data:`FAMILY`.
+    over :data:`FAMILY`; return the fitted points and normals ``(H, W, 3)`` of the windows chosen.
 
     Each pixel uses the whole window of each size nearest to it that contains
     it (its own, centred, when whole; else one shifted inwards from an edge,
     a hole or a silhouette, by at most ``w``), and evaluates that window's
     polynomial at its own offset ``δ`` from the window's centre, with the
-    standard deviation of the gradient there.
+    standard deviation of the gradient there. The ICI runs on the inverse
+    depth (whose noise the range model gives); the points and normals come
+    from the same windows fitted to the three coordinates of ``P`` (normal =
+    ``∂X/∂c × ∂X/∂r``), so that they depend on no camera model: a camera
+    whose calibration is off (the bench profile's 0.2°) moves the rays, not
+    the points the range measured.
     """
-    from math import comb
-
     H, W = valid.shape
     ref = float(np.mean(f[valid]))
-    g = np.where(valid, f - ref, 0.0)
     rr, cc = np.meshgrid(np.arange(H) - H / 2, np.arange(W) - W / 2, indexing="ij")  # centred, for precision
-    raw = {(p, q): _sat(g * cc**p * rr**q) for p in range(4) for q in range(4 - p)}
+    inverse = _Field(np.where(valid, f - ref, 0.0), cc, rr)
     count = _sat(valid.astype(float))
     lo = np.full((H, W, 2), -np.inf)
     hi = np.full((H, W, 2), np.inf)
     alive = valid.copy()
+    choice = np.full((H, W), -1)
+    centre = np.zeros((2, H, W), int)
     nearest: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for w, degree, blocks, _ in FAMILY:
+    for index, (w, degree, blocks, _) in enumerate(FAMILY):
         if 2 * w + 1 > min(H, W):
             continue
         if w not in nearest:
@@ -494,26 +596,8 @@ def _windows(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, model: RangeModel
             continue
         r0, c0_ = ci[rows, cols], cj[rows, cols]  # the window's centre
         dc, dr = (cols - c0_).astype(float), (rows - r0).astype(float)
-        j0, i0 = cc[r0, c0_], rr[r0, c0_]
-        box = _Lazy(lambda pq: _box(raw[pq], w, r0, c0_))
-
-        def moment(a_: int, b_: int) -> np.ndarray:
-            """Σ Δc^a Δr^b g over each window, from the raw sums about the image centre."""
-            return sum(comb(a_, p) * comb(b_, q) * (-j0) ** (a_ - p) * (-i0) ** (b_ - q) * box[p, q]
-                       for p in range(a_ + 1) for q in range(b_ + 1))
-
-        value = np.full(rows.size, ref)
-        grad = np.zeros((2, rows.size))
-        var = np.zeros((2, rows.size))
-        for block, inv in blocks:
-            coef = inv @ np.stack([moment(a, b) for a, b in block])  # (len(block), n)
-            value += sum(coef[m] * dc**a * dr**b for m, (a, b) in enumerate(block))
-            for axis in (0, 1):  # d/dΔc, d/dΔr of each monomial at δ
-                u = np.stack([(a * dc ** max(a - 1, 0) * dr**b) if axis == 0 else (b * dc**a * dr ** max(b - 1, 0))
-                              for a, b in block])
-                grad[axis] += np.sum(coef * u, axis=0)
-                var[axis] += np.einsum("mn,mk,kn->n", u, inv, u)
-        gc, gr = grad
+        value, (gc, gr), var = inverse.poly(w, blocks, r0, c0_, dc, dr)
+        value += ref
         sfp = sf[rows, cols]
         t = np.stack([gc, gr], axis=-1) / value[:, None]
         s = sfp[:, None] * np.sqrt(var.T) / np.abs(value)[:, None]
@@ -528,7 +612,26 @@ def _windows(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, model: RangeModel
         lo[rows[keep], cols[keep]], hi[rows[keep], cols[keep]] = lo_k[keep], hi_k[keep]
         fit[rows[meets], cols[meets]] = np.stack([value, gc, gr, sfp * np.sqrt(var.mean(axis=0))], axis=-1)[meets]
         half[rows[meets], cols[meets]] = w
+        choice[rows[meets], cols[meets]] = index
+        centre[:, rows[meets], cols[meets]] = np.stack([r0, c0_])[:, meets]
         alive[rows[~meets], cols[~meets]] = False
+    # the points and normals: the chosen windows fitted to x, y and z
+    X0 = P[valid].mean(axis=0)
+    coords = [_Field(np.where(valid, P[..., k] - X0[k], 0.0), cc, rr) for k in range(3)]
+    Xf = np.full((H, W, 3), np.nan)
+    Nf = np.full((H, W, 3), np.nan)
+    for index in np.unique(choice[choice >= 0]):
+        w, _, blocks, _ = FAMILY[index]
+        rows, cols = np.nonzero(choice == index)
+        r0, c0_ = centre[0, rows, cols], centre[1, rows, cols]
+        dc, dr = (cols - c0_).astype(float), (rows - r0).astype(float)
+        fits = [field.poly(w, blocks, r0, c0_, dc, dr)[:2] for field in coords]
+        Xf[rows, cols] = np.stack([v for v, _ in fits], axis=-1) + X0
+        dXdc = np.stack([g[0] for _, g in fits], axis=-1)
+        dXdr = np.stack([g[1] for _, g in fits], axis=-1)
+        n = np.cross(dXdc, dXdr)
+        Nf[rows, cols] = n / np.linalg.norm(n, axis=-1, keepdims=True)
+    return Xf, Nf
 
 
 def _tangent_fit(P: np.ndarray, valid: np.ndarray, N: np.ndarray, where: np.ndarray, half: np.ndarray,
@@ -667,17 +770,13 @@ def _one_quadric(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.nda
     if a is None:
         return None
     o = (cam - ref) / scale
-    r = rays[valid]
+    r = (X - cam) / np.linalg.norm(X - cam, axis=1, keepdims=True)  # each point's own direction, not the camera's ray
     tau_meas = np.linalg.norm(X - cam, axis=1) / scale
     f = D @ a
     grad = np.stack([D @ (GRADIENT[i] @ a) for i in range(3)], axis=1)
     n = grad / np.maximum(np.linalg.norm(grad, axis=1, keepdims=True), 1e-300)
     dist = f / np.maximum(np.linalg.norm(grad, axis=1), 1e-300) * scale  # Sampson distance, metres
-    along = np.abs(np.sum(n * r, axis=1))
-    if model.axis == "z":
-        axis = optical_axis(pinhole_matrix(rays))
-        along = along / np.maximum(r @ axis, 1e-12)
-    sigma_n = np.hypot(model.equivalent_sigma_m * along, floor)
+    sigma_n = _normal_noise(n, r, rays, model, floor)
     # a robust scale (1.4826·median|d/σ|: 1 for Gaussian residuals) rather than the RMS: near a silhouette σ·|n·r|
     # is tiny, and there the first-order Sampson distance is least exact
     if not 1.4826 * np.median(np.abs(dist / sigma_n)) <= PLANE_FIT:
@@ -716,3 +815,93 @@ def _one_quadric(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.nda
     sdq = np.full(valid.shape, np.nan)
     Pq[valid], Nq[valid], sdq[valid] = cam + (t * scale)[:, None] * r, N, sd
     return Pq, Nq, sdq
+
+
+def _normal_noise(n: np.ndarray, r: np.ndarray, rays: np.ndarray, model: RangeModel, floor: float) -> np.ndarray:
+    """Standard deviation of the range error along each normal ``n`` (m, 3), metres, for points on rays ``r``.
+
+    The error moves a point along its ray: by ``σ`` (along the ray) or by
+    ``σ / (r·axis)`` (along ``z``), of which ``|n·r|`` is across the surface;
+    with the float32 floor in quadrature.
+    """
+    along = np.abs(np.sum(n * r, axis=1))
+    if model.axis == "z":
+        along = along / np.maximum(r @ optical_axis(pinhole_matrix(rays)), 1e-12)
+    return np.hypot(model.equivalent_sigma_m * along, floor)
+
+
+#: Gauss–Newton iterations of the sphere's geometric fit (from the algebraic one: converged in 2-3).
+SPHERE_ITERATIONS = 5
+
+
+def _sphere_on_rays(c: np.ndarray, R: float, cam: np.ndarray, r: np.ndarray, near: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Distance along each unit ray ``r`` from ``cam`` to the sphere (the root nearest ``near``) and the unit
+    normal there (outward); NaN where a ray misses."""
+    b = r @ (cam - c)
+    disc = b * b - (np.sum((cam - c) ** 2) - R * R)
+    root = np.sqrt(np.where(disc >= 0, disc, np.nan))
+    t = np.where(np.abs(-b - root - near) <= np.abs(-b + root - near), -b - root, -b + root)
+    return t, (cam + t[:, None] * r - c) / R
+
+
+def _one_sphere(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndarray, model: RangeModel,
+                floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Points, normals and the normals' s.d. of one sphere through every valid pixel, when it fits within
+    :data:`PLANE_FIT` × the range noise along the normal (a robust scale of the residuals); else None.
+
+    The algebraic fit ``|X|² = 2c·X + k`` (linear), then Gauss–Newton on
+    the geometric residuals ``|X − c| − R`` weighted by the range noise
+    along the normal (:func:`_normal_noise`). The normals' s.d.: the fit's
+    covariance ``(JᵀWJ)⁻¹`` (scaled by the residuals' variance when above 1),
+    each of its four principal axes turning every normal by an angle, summed
+    in quadrature.
+    """
+    if valid.sum() < 50:
+        return None
+    X = P[valid]
+    r = (X - cam) / np.linalg.norm(X - cam, axis=1, keepdims=True)  # each point's own direction, not the camera's ray
+    ref = X.mean(axis=0)
+    Q = X - ref
+    sol = np.linalg.lstsq(np.column_stack([2 * Q, np.ones(len(Q))]), np.sum(Q * Q, axis=1), rcond=None)[0]
+    c = sol[:3]
+    R = float(np.sqrt(max(sol[3] + c @ c, 0.0)))
+    if not R > 0:
+        return None
+    for _ in range(SPHERE_ITERATIONS):
+        d = Q - c
+        dist = np.linalg.norm(d, axis=1)
+        n = d / dist[:, None]
+        w = 1.0 / _normal_noise(n, r, rays, model, floor)
+        J = np.column_stack([-n, -np.ones(len(n))]) * w[:, None]
+        res = (dist - R) * w
+        step = np.linalg.lstsq(J, -res, rcond=None)[0]
+        c, R = c + step[:3], R + float(step[3])
+    d = Q - c
+    dist = np.linalg.norm(d, axis=1)
+    n = d / dist[:, None]
+    w = 1.0 / _normal_noise(n, r, rays, model, floor)
+    res = (dist - R) * w
+    scale = 1.4826 * float(np.median(np.abs(res)))
+    if not scale <= PLANE_FIT:
+        return None
+    J = np.column_stack([-n, -np.ones(len(n))]) * w[:, None]
+    cov = np.linalg.inv(J.T @ J) * max(scale, 1.0) ** 2
+    centre = c + ref
+    near = np.linalg.norm(X - cam, axis=1)
+    t, N = _sphere_on_rays(centre, R, cam, r, near)
+    miss = ~np.isfinite(t)  # a ray grazing the silhouette: its measured point
+    t[miss], N[miss] = near[miss], n[miss]
+    vals, vecs = np.linalg.eigh(cov)
+    turn2 = np.zeros(len(t))
+    for k in range(4):
+        dv = vecs[:, k] * np.sqrt(max(vals[k], 0.0))
+        tk, Nk = _sphere_on_rays(centre + dv[:3], R + dv[3], cam, r, near)
+        Nk[~np.isfinite(tk)] = N[~np.isfinite(tk)]
+        turn2 += np.arctan2(np.linalg.norm(np.cross(Nk, N), axis=1), np.sum(Nk * N, axis=1)) ** 2
+    N = np.where((np.sum(N * r, axis=1) > 0)[:, None], -N, N)
+    Ps = np.full(P.shape, np.nan)
+    Ns = np.full(P.shape, np.nan)
+    sds = np.full(valid.shape, np.nan)
+    Ps[valid], Ns[valid], sds[valid] = cam + t[:, None] * r, N, np.sqrt(turn2)
+    return Ps, Ns, sds

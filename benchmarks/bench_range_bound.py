@@ -1,0 +1,139 @@
+"""Lamp RMSE against the Cramér–Rao bound under range noise: ``full`` and the corrected paper variant.
+
+Issue 34's benchmark table. For the analytic board and sphere
+(``nearlight.generator.analytic``, the sensitivity study's scene and
+160×120 camera, Torrance–Sparrow σ = 0.1), each row is one range error (none,
+``exact``: ``P`` and ``N`` as rendered, the bound ``crlb.specular_crlb``'s; Gaussian
+0.05, 0.2 and 1 mm along the ray; quanta of 0.2 and 1 mm along the optical
+axis, a depth map's, the grid's offset drawn per seed) at one of the
+sensitivity study's two camera-noise levels, over ``--seeds`` seeds (each
+seed its own camera noise, range noise and grid offset). With a range error each method runs
+on the capture with ``P`` and ``N`` replaced by the fitted surface's
+(``nearlight.estimator.surfaces.fit_surface``: what issue 34 wires into the
+estimators). Printed per row: the lamp's RMSE over the seeds (mm), the bound
+(``nearlight.evaluation.scoring.crlb_range.range_crlb``, a quantum as its
+equivalent noise q/√12), their ratio and the ratio's one-sided 95 %
+bootstrap upper bound (2000 resamples of the seeds), and the failures (a
+method that refused a seed counts; the RMSE is over the others).
+
+The issue's bar: the upper bound ≤ 1.5 in every row (part 2 takes it to ≤ 1.3).
+A method whose ``exact`` row is already above it (the paper's two-stage
+method is, by its camera-noise handling) is read against that row: what the
+range costs is the range rows' ratio over the exact one's. Printed, not
+asserted.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_range_bound.py --seeds 100 --workers 2     # about 20 minutes on 2 cores
+    .venv/bin/python benchmarks/bench_range_bound.py --seeds 10 --methods full   # a quick look
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+from tqdm import tqdm
+
+NOISE = {  # sweeps/sensitivity.yaml's camera noise levels
+    "low": {"full_well": 50000, "read_noise": 3.0, "bits": 14},
+    "high": {"full_well": 5000, "read_noise": 10.0, "bits": 10},
+}
+RANGE = {
+    "exact": {},  # P and N exact: the method's own ratio, what the range rows are read against
+    "gauss 0.05 mm": {"sigma_m": 5e-5},
+    "gauss 0.2 mm": {"sigma_m": 2e-4},
+    "gauss 1 mm": {"sigma_m": 1e-3},
+    "z-quantum 0.2 mm": {"quantum_m": 2e-4, "axis": "z"},
+    "z-quantum 1 mm": {"quantum_m": 1e-3, "axis": "z"},
+}
+METHODS = {
+    "full": ("full", {}),
+    "paper (model origin, bounded AM)": ("paper", {"origin": "model", "am": "bounded"}),
+}
+SIZE = (160, 120)
+
+
+def _clean(shape: str):
+    from nearlight.generator.analytic import analytic_capture
+
+    return analytic_capture(shape=shape, width=SIZE[0], height=SIZE[1])
+
+
+def _one(job: tuple[str, str, str, int, tuple[str, ...]]) -> dict[str, list[float]]:
+    """Lamp position error vectors (m) of each method on one seed's capture; NaN where it refused."""
+    from nearlight.errors import UserError
+    from nearlight.estimator.api import METHODS as BUILT_IN
+    from nearlight.estimator.geometry import capture_rays
+    from nearlight.estimator.surfaces import fit_surface
+    from nearlight.generator.analytic import DEFAULT_LAMP_POSITION
+    from nearlight.generator.noise import add_camera_noise
+    from nearlight.generator.range_sensor import perturb_range
+
+    shape, noise, rng, seed, methods = job
+    clean = _clean(shape)
+    cap = add_camera_noise(clean, noise=NOISE[noise], seed=seed)
+    if RANGE[rng]:
+        cap = perturb_range(cap, seed=seed, **RANGE[rng])
+        fitted = fit_surface(cap.P, clean.camera.position, capture_rays(clean))
+        cap = cap.replace(P=fitted.P.astype(np.float32), N=fitted.N)
+    out = {}
+    for label in methods:
+        name, options = METHODS[label]
+        try:
+            est = BUILT_IN[name](cap, **options)
+            out[label] = list(np.asarray(est.lamp_position, float) - DEFAULT_LAMP_POSITION)
+        except UserError:
+            out[label] = [np.nan] * 3
+    return out
+
+
+def _bound(shape: str, noise: str, rng: str) -> float:
+    from nearlight.evaluation.scoring.crlb import camera_noise_variance, specular_crlb
+    from nearlight.evaluation.scoring.crlb_range import range_crlb
+    from nearlight.estimator.surfaces import RangeModel
+
+    clean = _clean(shape)
+    spec = RANGE[rng]
+    if not spec:
+        return specular_crlb(clean, noise_var=camera_noise_variance(clean.stack, noise=NOISE[noise]))["crlb_lamp_m"]
+    sigma = RangeModel(sigma_m=spec.get("sigma_m", 0.0), quantum_m=spec.get("quantum_m", 0.0)).equivalent_sigma_m
+    out = range_crlb(clean, noise_var=camera_noise_variance(clean.stack, noise=NOISE[noise]), range_sigma_m=sigma,
+                     axis=spec.get("axis", "ray"))
+    return out["crlb_lamp_m"]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seeds", type=int, default=100)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
+    ap.add_argument("--shapes", nargs="+", default=["board", "sphere"], choices=["board", "sphere"])
+    args = ap.parse_args()
+    rows = list(itertools.product(args.shapes, NOISE, RANGE))
+    jobs = [(s, n, r, seed, tuple(args.methods)) for s, n, r in rows for seed in range(args.seeds)]
+    with ProcessPoolExecutor(args.workers) as pool:
+        results = list(tqdm(pool.map(_one, jobs, chunksize=4), total=len(jobs), desc="captures", unit="capture"))
+    rng = np.random.default_rng(0)
+    print(f"\n{args.seeds} seeds per row, {SIZE[0]}x{SIZE[1]}; RMSE and bound in mm; ratio = RMSE / bound, "
+          "its one-sided 95 % bootstrap upper bound\n")
+    print("| object | camera noise | range error | method | RMSE | bound | ratio | upper | failed |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for k, (shape, noise, rng_label) in enumerate(rows):
+        bound = _bound(shape, noise, rng_label)
+        part = results[k * args.seeds:(k + 1) * args.seeds]
+        for label in args.methods:
+            err = np.array([r[label] for r in part])
+            ok = np.all(np.isfinite(err), axis=1)
+            sq = np.sum(err[ok] ** 2, axis=1)
+            rmse = float(np.sqrt(sq.mean())) if ok.any() else np.nan
+            boot = np.sqrt(sq[rng.integers(0, len(sq), (2000, len(sq)))].mean(axis=1)) if ok.any() else [np.nan]
+            upper = float(np.percentile(boot, 95))
+            print(f"| {shape} | {noise} | {rng_label} | {label} | {rmse * 1e3:.3g} | {bound * 1e3:.3g} | "
+                  f"{rmse / bound:.2f} | {upper / bound:.2f} | {int((~ok).sum())} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
