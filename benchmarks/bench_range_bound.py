@@ -11,7 +11,7 @@ seed its own camera noise, range noise and grid offset). With a range error each
 on the capture with ``P`` and ``N`` replaced by the fitted surface's
 (``nearlight.estimator.surfaces.fit_surface``: what issue 34 wires into the
 estimators). Printed per row: the lamp's RMSE over the seeds (mm), the bound
-(``nearlight.evaluation.scoring.crlb_range.range_crlb``, a quantum as its
+(``nearlight.evaluation.scoring.range_bound.range_crlb``, a quantum as its
 equivalent noise q/√12), their ratio and the ratio's one-sided 95 %
 bootstrap upper bound (2000 resamples of the seeds), and the failures (a
 method that refused a seed counts; the RMSE is over the others).
@@ -92,7 +92,7 @@ def _one(job: tuple[str, str, str, int, tuple[str, ...]]) -> dict[str, list[floa
 
 def _bound(shape: str, noise: str, rng: str) -> float:
     from nearlight.evaluation.scoring.crlb import camera_noise_variance, specular_crlb
-    from nearlight.evaluation.scoring.crlb_range import range_crlb
+    from nearlight.evaluation.scoring.range_bound import range_crlb
     from nearlight.estimator.surfaces import RangeModel
 
     clean = _clean(shape)

@@ -1,4 +1,4 @@
-"""The Cramér–Rao bound with range noise (nearlight.evaluation.scoring.crlb_range) against its limits."""
+"""The Cramér–Rao bound with range noise (nearlight.evaluation.scoring.range_bound) against its limits."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nearlight.evaluation.scoring.crlb import camera_noise_variance, specular_crlb
-from nearlight.evaluation.scoring.crlb_range import range_crlb, surface_family
+from nearlight.evaluation.scoring.range_bound import range_crlb, surface_family
 from nearlight.generator.analytic import analytic_capture
 
 LOW = {"full_well": 50000, "read_noise": 3.0, "bits": 14}  # sweeps/sensitivity.yaml's "low" camera noise

@@ -1,0 +1,320 @@
+"""One surface through every range pixel, when the data say so: a plane, a sphere or a quadric.
+
+Tried in that order, the simplest family first, each accepted when its
+residuals are within :data:`PLANE_FIT` times the range noise across the
+surface (:func:`normal_noise`): :func:`one_plane` (a board is one plane
+over all its pixels, also at its edges, where no centred window is whole),
+:func:`one_sphere` (4 parameters), :func:`one_quadric` (Taubin's fit, 9:
+a cylinder, a cone, an ellipsoid, two planes meeting at a crease). Every
+point and normal is then the surface's, where each point's own direction
+from the camera meets it. Only when none fits (a bent plate with a rounded
+bend, a torus, a real object) are the normals local
+(:mod:`~nearlight.estimator.local_windows`). This is model selection by
+the data, not knowledge of the scene: a sphere's four parameters fixed by
+10⁴–10⁵ range pixels give its normals to thousandths of a degree at 0.2 mm
+of noise, which no local window can (its bound,
+:mod:`nearlight.evaluation.scoring.range_bound`, takes the same family).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import distance_transform_cdt
+
+from .pinhole import optical_axis, pinhole_matrix
+from .range_error import RangeModel
+
+#: Spatial blocks (per side) of the jackknife that gives a whole plane's covariance (:func:`one_plane`).
+JACKKNIFE_BLOCKS = 4
+
+#: The whole-quadric jackknife evaluates its replicates on every this-many-th row and column.
+JACKKNIFE_STEP = 3
+
+#: A plane fits the whole surface when its residual RMS is within this factor of the noise.
+PLANE_FIT = 1.5
+
+#: Gauss–Newton iterations of the sphere's geometric fit (from the algebraic one: converged in 2-3).
+SPHERE_ITERATIONS = 5
+
+
+def normal_noise(n: np.ndarray, r: np.ndarray, rays: np.ndarray, model: RangeModel, floor: float) -> np.ndarray:
+    """Standard deviation of the range error along each normal ``n`` (m, 3), metres, for points on rays ``r``.
+
+    The error moves a point along its ray: by ``σ`` (along the ray) or by
+    ``σ / (r·axis)`` (along ``z``), of which ``|n·r|`` is across the surface;
+    with the float32 floor in quadrature.
+    """
+    along = np.abs(np.sum(n * r, axis=1))
+    if model.axis == "z":
+        along = along / np.maximum(r @ optical_axis(pinhole_matrix(rays)), 1e-12)
+    return np.hypot(model.equivalent_sigma_m * along, floor)
+
+def plane_in_space(P: np.ndarray, valid: np.ndarray, cam: np.ndarray, N: np.ndarray, rays: np.ndarray,
+                    model: RangeModel, floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """The whole plane's points and normals, fitted to the points in space (no camera model).
+
+    :func:`one_plane` decides that one plane fits (its inverse depth affine
+    over the pixels); the plane itself is fitted to ``P``: the weighted
+    principal axes of the points, each weighted by the range noise across
+    the plane (:func:`normal_noise`, with the pixel-grid fit's normals
+    ``N``), and each point moved along its own direction from the camera
+    onto it. A camera whose calibration is off moves its rays, not the
+    points the range measured.
+    """
+    X = P[valid]
+    u = (X - cam) / np.linalg.norm(X - cam, axis=1, keepdims=True)
+    w = 1.0 / normal_noise(N[valid], u, rays, model, floor) ** 2
+    centroid = (w[:, None] * X).sum(0) / w.sum()
+    Q = X - centroid
+    n = np.linalg.eigh((w[:, None] * Q).T @ Q)[1][:, 0]
+    along = u @ n
+    Pf = np.full(P.shape, np.nan)
+    Nf = np.full(P.shape, np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Pf[valid] = X - ((Q @ n) / along)[:, None] * u
+    Nf[valid] = n
+    return Pf, Nf
+
+def one_plane(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, cc: np.ndarray, rr: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(coefficients [a, b, c] of f ≈ a + b·c + c·r, their covariance)`` when one plane fits every valid pixel
+    within :data:`PLANE_FIT` × the noise, else None.
+
+    The covariance is the larger of the independent-noise one and a
+    delete-one-block jackknife over :data:`JACKKNIFE_BLOCKS`² spatial blocks:
+    a staircase's errors are correlated over a terrace, which the first
+    alone would take for independent noise (on a 1-mm z-quantised board,
+    errors of 5 to 17 standard deviations).
+    """
+    if valid.sum() < 20:
+        return None
+    x, y, w = cc[valid], rr[valid], 1.0 / sf[valid]
+    x0, y0 = x.mean(), y.mean()
+    A = np.stack([np.ones_like(x), x - x0, y - y0], axis=1) * w[:, None]
+    b = f[valid] * w
+    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    rms = float(np.sqrt(np.mean((A @ coef - b) ** 2)))
+    if not rms <= PLANE_FIT:
+        return None
+    cov = np.linalg.inv(A.T @ A) * max(rms, 1.0) ** 2
+    H, W = valid.shape
+    block = (np.minimum(y * JACKKNIFE_BLOCKS // H, JACKKNIFE_BLOCKS - 1) * JACKKNIFE_BLOCKS
+             + np.minimum(x * JACKKNIFE_BLOCKS // W, JACKKNIFE_BLOCKS - 1)).astype(int)
+    present = np.unique(block)
+    if present.size >= 4:
+        # each block's normal equations by one sort and a segmented sum (not a boolean mask per block)
+        order = np.argsort(block, kind="stable")
+        starts = np.searchsorted(block[order], present)
+        As, bs = A[order], b[order]
+        AtAk = np.add.reduceat(As[:, :, None] * As[:, None, :], starts, axis=0)
+        Atbk = np.add.reduceat(As * bs[:, None], starts, axis=0)
+        leave = np.linalg.solve(AtAk.sum(0) - AtAk, (Atbk.sum(0) - Atbk)[..., None])[..., 0]
+        g = present.size
+        jack = (g - 1) / g * (leave - leave.mean(axis=0)).T @ (leave - leave.mean(axis=0))
+        cov = np.where(np.diag(jack)[:, None] * np.diag(jack)[None, :] > np.diag(cov)[:, None] * np.diag(cov)[None, :],
+                       jack, cov)
+    shift = np.array([[1.0, -x0, -y0], [0, 1, 0], [0, 0, 1]])
+    return shift @ coef, shift @ cov @ shift.T
+
+def _sphere_on_rays(c: np.ndarray, R: float, cam: np.ndarray, r: np.ndarray, near: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Distance along each unit ray ``r`` from ``cam`` to the sphere (the root nearest ``near``) and the unit
+    normal there (outward); NaN where a ray misses."""
+    b = r @ (cam - c)
+    disc = b * b - (np.sum((cam - c) ** 2) - R * R)
+    root = np.sqrt(np.where(disc >= 0, disc, np.nan))
+    t = np.where(np.abs(-b - root - near) <= np.abs(-b + root - near), -b - root, -b + root)
+    return t, (cam + t[:, None] * r - c) / R
+
+def one_sphere(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndarray, model: RangeModel,
+                floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Points, normals and the normals' s.d. of one sphere through every valid pixel, when it fits within
+    :data:`PLANE_FIT` × the range noise along the normal (a robust scale of the residuals); else None.
+
+    The algebraic fit ``|X|² = 2c·X + k`` (linear), then Gauss–Newton on
+    the geometric residuals ``|X − c| − R`` weighted by the range noise
+    along the normal (:func:`normal_noise`). The normals' s.d.: the fit's
+    covariance ``(JᵀWJ)⁻¹`` (scaled by the residuals' variance when above 1),
+    each of its four principal axes turning every normal by an angle, summed
+    in quadrature.
+    """
+    if valid.sum() < 50:
+        return None
+    X = P[valid]
+    r = (X - cam) / np.linalg.norm(X - cam, axis=1, keepdims=True)  # each point's own direction, not the camera's ray
+    ref = X.mean(axis=0)
+    Q = X - ref
+    sol = np.linalg.lstsq(np.column_stack([2 * Q, np.ones(len(Q))]), np.sum(Q * Q, axis=1), rcond=None)[0]
+    c = sol[:3]
+    R = float(np.sqrt(max(sol[3] + c @ c, 0.0)))
+    if not R > 0:
+        return None
+    for _ in range(SPHERE_ITERATIONS):
+        d = Q - c
+        dist = np.linalg.norm(d, axis=1)
+        n = d / dist[:, None]
+        w = 1.0 / normal_noise(n, r, rays, model, floor)
+        J = np.column_stack([-n, -np.ones(len(n))]) * w[:, None]
+        res = (dist - R) * w
+        step = np.linalg.lstsq(J, -res, rcond=None)[0]
+        c, R = c + step[:3], R + float(step[3])
+    d = Q - c
+    dist = np.linalg.norm(d, axis=1)
+    n = d / dist[:, None]
+    w = 1.0 / normal_noise(n, r, rays, model, floor)
+    res = (dist - R) * w
+    scale = 1.4826 * float(np.median(np.abs(res)))
+    if not scale <= PLANE_FIT:
+        return None
+    J = np.column_stack([-n, -np.ones(len(n))]) * w[:, None]
+    cov = np.linalg.inv(J.T @ J) * max(scale, 1.0) ** 2
+    centre = c + ref
+    near = np.linalg.norm(X - cam, axis=1)
+    t, N = _sphere_on_rays(centre, R, cam, r, near)
+    miss = ~np.isfinite(t)  # a ray grazing the silhouette: its measured point
+    t[miss], N[miss] = near[miss], n[miss]
+    vals, vecs = np.linalg.eigh(cov)
+    turn2 = np.zeros(len(t))
+    for k in range(4):
+        dv = vecs[:, k] * np.sqrt(max(vals[k], 0.0))
+        tk, Nk = _sphere_on_rays(centre + dv[:3], R + dv[3], cam, r, near)
+        Nk[~np.isfinite(tk)] = N[~np.isfinite(tk)]
+        turn2 += np.arctan2(np.linalg.norm(np.cross(Nk, N), axis=1), np.sum(Nk * N, axis=1)) ** 2
+    N = np.where((np.sum(N * r, axis=1) > 0)[:, None], -N, N)
+    Ps = np.full(P.shape, np.nan)
+    Ns = np.full(P.shape, np.nan)
+    sds = np.full(valid.shape, np.nan)
+    Ps[valid], Ns[valid], sds[valid] = cam + t[:, None] * r, N, np.sqrt(turn2)
+    return Ps, Ns, sds
+
+def _quadric_design(u: np.ndarray) -> np.ndarray:
+    """Rows ``[x², y², z², xy, xz, yz, x, y, z, 1]`` of the points ``u`` (n, 3), shape (n, 10)."""
+    x, y, z = u.T
+    return np.stack([x * x, y * y, z * z, x * y, x * z, y * z, x, y, z, np.ones_like(x)], axis=1)
+
+def _gradient_selectors() -> np.ndarray:
+    """``S`` (3, 10, 10) with each gradient row ``∂D/∂x_i = D·S[i]``: every entry of the gradient of a monomial of
+    degree ≤ 2 is a monomial of degree ≤ 1, itself a column of ``D`` (so ``Σ GᵢᵀGᵢ = Sᵢᵀ (DᵀD) Sᵢ``)."""
+    S = np.zeros((3, 10, 10))
+    x, y, z, one = 6, 7, 8, 9  # the columns of x, y, z and 1 in D
+    for i, col in enumerate((x, y, z)):
+        S[i, col, i] = 2.0  # ∂(x_i²) = 2 x_i
+        S[i, one, 6 + i] = 1.0  # ∂(x_i) = 1
+    # the cross terms xy, xz, yz (columns 3, 4, 5)
+    S[0, y, 3], S[1, x, 3] = 1.0, 1.0
+    S[0, z, 4], S[2, x, 4] = 1.0, 1.0
+    S[1, z, 5], S[2, y, 5] = 1.0, 1.0
+    return S
+
+GRADIENT = _gradient_selectors()
+
+def _taubin(Mm: np.ndarray, Nm: np.ndarray) -> np.ndarray | None:
+    """Taubin's quadric: the generalised eigenvector of ``(Σ DᵀD, Σ GᵀG)`` of the smallest finite eigenvalue."""
+    import scipy.linalg
+
+    with np.errstate(all="ignore"):
+        vals, vecs = scipy.linalg.eig(Mm, Nm)
+    vals = np.real(vals)
+    ok = np.isfinite(vals) & (vals > -1e-9 * max(float(np.trace(Mm)), 1e-300))
+    if not ok.any():
+        return None
+    a = np.real(vecs[:, np.flatnonzero(ok)[np.argmin(vals[ok])]])
+    return a / np.linalg.norm(a)
+
+def _quadric_surface(a: np.ndarray, o: np.ndarray, rays: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where each ray ``o + τ r`` (scaled coordinates) meets the quadric ``a`` nearest ``τ = tau``, and the unit
+    gradient there: ``(τ, normal)``, NaN where it misses."""
+    A = np.array([[a[0], a[3] / 2, a[4] / 2], [a[3] / 2, a[1], a[5] / 2], [a[4] / 2, a[5] / 2, a[2]]])
+    b, c = a[6:9], a[9]
+    qa = np.einsum("ni,ij,nj->n", rays, A, rays)
+    qb = 2 * rays @ (A @ o) + rays @ b
+    qc = o @ A @ o + b @ o + c
+    with np.errstate(invalid="ignore", divide="ignore"):
+        disc = np.sqrt(np.where(qb * qb - 4 * qa * qc >= 0, qb * qb - 4 * qa * qc, np.nan))
+        q = -0.5 * (qb + np.copysign(disc, qb))
+        roots = np.stack([q / qa, qc / q])  # both roots, stable
+    pick = np.argmin(np.abs(np.nan_to_num(roots, nan=np.inf) - tau), axis=0)
+    t = roots[pick, np.arange(len(tau))]
+    u = o + t[:, None] * rays
+    g = 2 * u @ A + b
+    return t, g / np.linalg.norm(g, axis=1, keepdims=True)
+
+def one_quadric(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndarray, model: RangeModel,
+                 floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Points, normals and the normals' s.d. of one quadric surface (sphere, cylinder, cone, ellipsoid) through
+    every valid pixel, when it fits within :data:`PLANE_FIT` × the range noise along the normal (a robust scale of
+    the residuals); else None.
+
+    Taubin's fit (G. Taubin, TPAMI 13(11), 1991: the algebraic residual
+    over its gradient, to first order the geometric distance), its
+    residuals the Sampson distances ``f/|∇f|``, their noise the range
+    error's component along the normal (along the ray: ``σ·|n·r|``; along
+    ``z``: ``σ·|n·r| / (r·axis)``). The normals' s.d. is a delete-one-block
+    jackknife over :data:`JACKKNIFE_BLOCKS`² spatial blocks (the sums of the
+    eigenproblem are additive, so each replicate costs one 10 × 10 solve).
+    A plane must be tested before (:func:`one_plane`): it is a degenerate
+    quadric, every plane pair through it fitting as well.
+    """
+    H, W = valid.shape
+    if valid.sum() < 50:
+        return None
+    X = P[valid]
+    ref = X.mean(axis=0)
+    scale = float(np.sqrt(np.mean(np.sum((X - ref) ** 2, axis=1))))
+    u = (X - ref) / scale
+    D = _quadric_design(u)
+    rows, cols = np.nonzero(valid)
+    block = (np.minimum(rows * JACKKNIFE_BLOCKS // H, JACKKNIFE_BLOCKS - 1) * JACKKNIFE_BLOCKS
+             + np.minimum(cols * JACKKNIFE_BLOCKS // W, JACKKNIFE_BLOCKS - 1))
+    present = np.unique(block)
+    Mb = np.stack([D[block == k].T @ D[block == k] for k in present])
+    Nb = np.einsum("iab,kac,icd->kbd", GRADIENT, Mb, GRADIENT)
+    a = _taubin(Mb.sum(0), Nb.sum(0))
+    if a is None:
+        return None
+    o = (cam - ref) / scale
+    r = (X - cam) / np.linalg.norm(X - cam, axis=1, keepdims=True)  # each point's own direction, not the camera's ray
+    tau_meas = np.linalg.norm(X - cam, axis=1) / scale
+    f = D @ a
+    grad = np.stack([D @ (GRADIENT[i] @ a) for i in range(3)], axis=1)
+    n = grad / np.maximum(np.linalg.norm(grad, axis=1, keepdims=True), 1e-300)
+    dist = f / np.maximum(np.linalg.norm(grad, axis=1), 1e-300) * scale  # Sampson distance, metres
+    sigma_n = normal_noise(n, r, rays, model, floor)
+    # a robust scale (1.4826·median|d/σ|: 1 for Gaussian residuals) rather than the RMS: near a silhouette σ·|n·r|
+    # is tiny, and there the first-order Sampson distance is least exact
+    if not 1.4826 * np.median(np.abs(dist / sigma_n)) <= PLANE_FIT:
+        return None
+    t, N = _quadric_surface(a, o, r, tau_meas)
+    # a ray that grazes the silhouette may miss the fitted quadric by a hair: its measured point, and the quadric's
+    # gradient there
+    miss = ~np.isfinite(t)
+    t[miss], N[miss] = tau_meas[miss], n[miss]
+    # the jackknife's replicates on every JACKKNIFE_STEP-th row and column; each pixel takes its nearest such
+    # pixel's s.d. (the s.d. of a whole-surface fit varies over many pixels, not from one to the next)
+    lattice = np.zeros(valid.shape, bool)
+    lattice[::JACKKNIFE_STEP, ::JACKKNIFE_STEP] = True
+    lattice &= valid
+    if not lattice.any():
+        lattice = valid
+    on = lattice[valid]
+    turns = []
+    for k in range(len(present)):
+        ak = _taubin(Mb.sum(0) - Mb[k], Nb.sum(0) - Nb[k])
+        if ak is None:
+            return None
+        tk, Nk = _quadric_surface(ak, o, r[on], tau_meas[on])
+        Nk[~np.isfinite(tk)] = N[on][~np.isfinite(tk)]
+        turns.append(Nk * np.sign(np.sum(Nk * N[on], axis=1, keepdims=True)))
+    turns = np.stack(turns)
+    g = len(present)
+    spread = turns - turns.mean(axis=0)
+    sd_lattice = np.full(valid.shape, np.nan)
+    sd_lattice[lattice] = np.sqrt((g - 1) / g * np.sum(spread**2, axis=(0, 2)))
+    near = distance_transform_cdt(~lattice, metric="chessboard", return_indices=True)[1]
+    sd = sd_lattice[near[0], near[1]][valid]
+    N = np.where((np.sum(N * r, axis=1) > 0)[:, None], -N, N)
+    Pq = np.full(P.shape, np.nan)
+    Nq = np.full(P.shape, np.nan)
+    sdq = np.full(valid.shape, np.nan)
+    Pq[valid], Nq[valid], sdq[valid] = cam + (t * scale)[:, None] * r, N, sd
+    return Pq, Nq, sdq
