@@ -46,6 +46,7 @@ BLOCKS = {
     3: (((0, 0), (2, 0), (0, 2)), ((1, 0), (3, 0), (1, 2)), ((0, 1), (0, 3), (2, 1)), ((1, 1),)),
 }
 
+
 def _family() -> list[tuple[int, int, list[tuple[tuple[tuple[int, int], ...], np.ndarray]], float]]:
     """The windows and degrees the ICI runs through: ``(half-width, degree, [(block, G⁻¹)], k)``, ``k`` the centre
     gradient's standard deviation per unit noise, sorted by ``k`` falling (the least biased, noisiest first).
@@ -66,7 +67,9 @@ def _family() -> list[tuple[int, int, list[tuple[tuple[tuple[int, int], ...], np
             out.append((w, degree, inv, float(np.sqrt(inv[1][1][0, 0]))))
     return sorted(out, key=lambda x: -x[3])
 
+
 FAMILY = _family()
+
 
 class _Lazy(dict):
     """A dict that computes a missing key's value once, by ``make(key)``."""
@@ -79,16 +82,20 @@ class _Lazy(dict):
         self[key] = value = self.make(key)
         return value
 
+
 def _sat(a: np.ndarray) -> np.ndarray:
     """Summed-area table with a zero first row and column, shape ``(H + 1, W + 1)``."""
     out = np.zeros((a.shape[0] + 1, a.shape[1] + 1))
     np.cumsum(np.cumsum(a, axis=0), axis=1, out=out[1:, 1:])
     return out
 
+
 def _box(S: np.ndarray, w: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """Sums over the ``(2w+1)²`` windows centred on pixels ``(rows, cols)`` (windows inside the image), shape ``rows.shape``."""
+    """Sums over the ``(2w+1)²`` windows centred on pixels ``(rows, cols)`` (windows inside the image), shape
+    ``rows.shape``."""
     r0, r1, c0, c1 = rows - w, rows + w + 1, cols - w, cols + w + 1
     return S[r1, c1] - S[r0, c1] - S[r1, c0] + S[r0, c0]
+
 
 class _Field:
     """One image ``g`` (``[H, W]``, 0 off the surface) with summed-area tables of ``g·c^p·r^q`` (``p + q ≤ 3``, made
@@ -126,8 +133,9 @@ class _Field:
                 var[axis] += np.einsum("mn,mk,kn->n", u, inv, u)
         return value, grad, var
 
+
 def fitted_windows(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, model: RangeModel, zs: np.ndarray, P: np.ndarray,
-             fit: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                   fit: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Fill ``fit`` (value, gradient per pixel along columns and rows, the gradient's s.d.) and ``half`` by the ICI
     over :data:`FAMILY`; return the fitted points and normals ``(H, W, 3)`` of the windows chosen.
 
@@ -208,8 +216,9 @@ def fitted_windows(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, model: Rang
         Nf[rows, cols] = n / np.linalg.norm(n, axis=-1, keepdims=True)
     return Xf, Nf
 
+
 def tangent_fit(P: np.ndarray, valid: np.ndarray, N: np.ndarray, where: np.ndarray, half: np.ndarray,
-                 iterations: int = 2) -> np.ndarray:
+                iterations: int = 2) -> np.ndarray:
     """Normals at the pixels ``where`` from a quadric height field over each one's tangent plane, shape ``(n, 3)``.
 
     Near a silhouette the inverse depth over the pixel grid is no polynomial
@@ -238,7 +247,8 @@ def tangent_fit(P: np.ndarray, valid: np.ndarray, N: np.ndarray, where: np.ndarr
             e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
             e2 = np.cross(n, e1)
             u, v, h = (np.einsum("pkx,px->pk", Q, e) for e in (e1, e2, n))
-            scale = np.sqrt(np.sum(ok * (u * u + v * v), axis=1, keepdims=True) / np.maximum(ok.sum(1, keepdims=True), 1))
+            count = np.maximum(ok.sum(1, keepdims=True), 1)
+            scale = np.sqrt(np.sum(ok * (u * u + v * v), axis=1, keepdims=True) / count)
             u, v = u / scale, v / scale
             A = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1) * ok[..., None]
             G = np.einsum("pki,pkj->pij", A, A)

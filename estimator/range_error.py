@@ -73,7 +73,8 @@ def _lattice(depth: np.ndarray) -> float:
     A lattice has few distinct levels for its pixels (on average at least
     :data:`PIXELS_PER_LEVEL` on each) and every gap between consecutive levels
     a whole multiple of one step (the smallest gap, or that divided by up to
-    :data:`MAX_DIVISOR`); a smooth range's values are all distinct. Values within float32 precision of each other count as one.
+    :data:`MAX_DIVISOR`); a smooth range's values are all distinct. Values
+    within float32 precision of each other count as one.
     """
     if depth.size < 50:
         return 0.0

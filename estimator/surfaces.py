@@ -47,21 +47,24 @@ FLOAT32_FLOOR = 2.0**-24 / np.sqrt(3.0)
 GRAZING = 0.5
 
 
-def _normal(M: np.ndarray, f0: np.ndarray, gc: np.ndarray, gr: np.ndarray, cc: np.ndarray, rr: np.ndarray) -> np.ndarray:
+def _normal(M: np.ndarray, f0: np.ndarray, gc: np.ndarray, gr: np.ndarray, cc: np.ndarray, rr: np.ndarray
+            ) -> np.ndarray:
     """Unit normals ``M⁻ᵀ [f_c, f_r, f − c f_c − r f_r]`` (not yet oriented), shape ``f0.shape + (3,)``."""
     v = np.stack([gc, gr, f0 - cc * gc - rr * gr], axis=-1)
     m = v @ np.linalg.inv(M)  # (M⁻ᵀ v)ᵀ = vᵀ M⁻¹
     return m / np.linalg.norm(m, axis=-1, keepdims=True)
 
+
 @dataclasses.dataclass(frozen=True)
 class FittedSurface:
-    """Normals fitted to a range image (:func:`fit_surface`).
+    """Points and normals fitted to a range image (:func:`fit_surface`).
 
     Attributes
     ----------
     P : ndarray, shape (H, W, 3)
-        The fitted surface's points on each pixel's ray, metres (the range
-        with its noise fitted away); NaN where no fit.
+        The fitted surface's points, metres (the range with its noise fitted
+        away; at grazing pixels refitted in their tangent frame, the measured
+        point); NaN where no fit.
     N : ndarray, shape (H, W, 3)
         Unit normals towards the camera; NaN where no fit.
     sd_rad : ndarray, shape (H, W)
@@ -89,9 +92,10 @@ class FittedSurface:
         """Whether one plane fitted the whole surface."""
         return self.kind == "plane"
 
+
 def fit_surface(P: np.ndarray, camera_position: np.ndarray, rays: np.ndarray, *, model: RangeModel | None = None,
                 valid: np.ndarray | None = None) -> FittedSurface:
-    """Normals of the surface fitted to the range image ``P`` (see the module docstring).
+    """Points and normals of the surface fitted to the range image ``P`` (see the module docstring).
 
     Parameters
     ----------
@@ -136,7 +140,8 @@ def fit_surface(P: np.ndarray, camera_position: np.ndarray, rays: np.ndarray, *,
     plane = whole_surface.one_plane(f, sf, valid, cc, rr)
     if plane is None:
         # the simplest family that fits within the noise: a sphere's 4 parameters before a quadric's 9
-        for kind, code, fitter in (("sphere", -3, whole_surface.one_sphere), ("quadric", -2, whole_surface.one_quadric)):
+        for kind, code, fitter in (("sphere", -3, whole_surface.one_sphere),
+                                   ("quadric", -2, whole_surface.one_quadric)):
             whole = fitter(P, valid, rays, cam, model, floor)
             if whole is not None:
                 Pq, Nq, sdq = whole
@@ -157,20 +162,15 @@ def fit_surface(P: np.ndarray, camera_position: np.ndarray, rays: np.ndarray, *,
     n0 = _normal(M, f0, gc, gr, x, y)
     N[done] = n0
     # each tilt's standard deviation: the angle a one-s.d. change of each gradient component turns the normal by;
-    # for one plane on a lattice of pixels, each pixel taking its nearest's (it varies over the image, not per pixel)
-    at = done.copy()
-    if plane is not None:
-        at[:] = False
-        at[::whole_surface.JACKKNIFE_STEP, ::whole_surface.JACKKNIFE_STEP] = True
-        at &= done
+    # for one plane on a lattice of pixels, each pixel taking its nearest's
+    at = done if plane is None else whole_surface.jackknife_lattice(done)
     pick = at[done]
     turn = [np.arccos(np.clip(np.sum(n0[pick] * _normal(M, f0[pick], gc[pick] + dc * sg[pick], gr[pick] + dr * sg[pick],
                                                         x[pick], y[pick]), axis=-1), -1.0, 1.0))
             for dc, dr in ((1.0, 0.0), (0.0, 1.0))]
     sd[at] = np.hypot(*turn)
-    if plane is not None and at.any():
-        near = distance_transform_cdt(~at, metric="chessboard", return_indices=True)[1]
-        sd = np.where(done, sd[near[0], near[1]], np.nan)
+    if plane is not None:
+        sd = np.where(done, whole_surface.from_nearest(sd, at), np.nan)
     if plane is None:
         Pf, N = Xw, np.where(done[..., None], Nw, np.nan)
     else:

@@ -37,6 +37,39 @@ PLANE_FIT = 1.5
 SPHERE_ITERATIONS = 5
 
 
+def jackknife_blocks(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Each pixel's spatial block, ``0 … JACKKNIFE_BLOCKS² − 1``, of the delete-one-block jackknife (row-major)."""
+    H, W = shape
+    return (np.minimum(rows * JACKKNIFE_BLOCKS // H, JACKKNIFE_BLOCKS - 1) * JACKKNIFE_BLOCKS
+            + np.minimum(cols * JACKKNIFE_BLOCKS // W, JACKKNIFE_BLOCKS - 1)).astype(int)
+
+
+def jackknife_lattice(valid: np.ndarray) -> np.ndarray:
+    """The pixels a whole surface's s.d. is evaluated at: every :data:`JACKKNIFE_STEP`-th row and column of
+    ``valid`` (all of ``valid`` when none of those is); the others take their nearest's (:func:`from_nearest`)."""
+    lattice = np.zeros(valid.shape, bool)
+    lattice[::JACKKNIFE_STEP, ::JACKKNIFE_STEP] = True
+    lattice &= valid
+    return lattice if lattice.any() else valid.copy()
+
+
+def from_nearest(values: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """``values`` (``[H, W]``) at every pixel taken from the nearest pixel of ``at`` (chessboard distance): the
+    s.d. of a whole-surface fit varies over many pixels, not from one to the next."""
+    near = distance_transform_cdt(~at, metric="chessboard", return_indices=True)[1]
+    return values[near[0], near[1]]
+
+
+def directions(X: np.ndarray, cam: np.ndarray) -> np.ndarray:
+    """Unit direction of each point ``X`` (n, 3) from the camera: its own, not the camera model's ray."""
+    return (X - cam) / np.linalg.norm(X - cam, axis=1, keepdims=True)
+
+
+def towards(N: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Normals ``N`` (n, 3) turned to face the camera that looks along ``r``."""
+    return np.where((np.sum(N * r, axis=1) > 0)[:, None], -N, N)
+
+
 def normal_noise(n: np.ndarray, r: np.ndarray, rays: np.ndarray, model: RangeModel, floor: float) -> np.ndarray:
     """Standard deviation of the range error along each normal ``n`` (m, 3), metres, for points on rays ``r``.
 
@@ -49,8 +82,9 @@ def normal_noise(n: np.ndarray, r: np.ndarray, rays: np.ndarray, model: RangeMod
         along = along / np.maximum(r @ optical_axis(pinhole_matrix(rays)), 1e-12)
     return np.hypot(model.equivalent_sigma_m * along, floor)
 
+
 def plane_in_space(P: np.ndarray, valid: np.ndarray, cam: np.ndarray, N: np.ndarray, rays: np.ndarray,
-                    model: RangeModel, floor: float) -> tuple[np.ndarray, np.ndarray]:
+                   model: RangeModel, floor: float) -> tuple[np.ndarray, np.ndarray]:
     """The whole plane's points and normals, fitted to the points in space (no camera model).
 
     :func:`one_plane` decides that one plane fits (its inverse depth affine
@@ -62,7 +96,7 @@ def plane_in_space(P: np.ndarray, valid: np.ndarray, cam: np.ndarray, N: np.ndar
     points the range measured.
     """
     X = P[valid]
-    u = (X - cam) / np.linalg.norm(X - cam, axis=1, keepdims=True)
+    u = directions(X, cam)
     w = 1.0 / normal_noise(N[valid], u, rays, model, floor) ** 2
     centroid = (w[:, None] * X).sum(0) / w.sum()
     Q = X - centroid
@@ -74,6 +108,7 @@ def plane_in_space(P: np.ndarray, valid: np.ndarray, cam: np.ndarray, N: np.ndar
         Pf[valid] = X - ((Q @ n) / along)[:, None] * u
     Nf[valid] = n
     return Pf, Nf
+
 
 def one_plane(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, cc: np.ndarray, rr: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray] | None:
@@ -97,9 +132,7 @@ def one_plane(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, cc: np.ndarray, 
     if not rms <= PLANE_FIT:
         return None
     cov = np.linalg.inv(A.T @ A) * max(rms, 1.0) ** 2
-    H, W = valid.shape
-    block = (np.minimum(y * JACKKNIFE_BLOCKS // H, JACKKNIFE_BLOCKS - 1) * JACKKNIFE_BLOCKS
-             + np.minimum(x * JACKKNIFE_BLOCKS // W, JACKKNIFE_BLOCKS - 1)).astype(int)
+    block = jackknife_blocks(y, x, valid.shape)
     present = np.unique(block)
     if present.size >= 4:
         # each block's normal equations by one sort and a segmented sum (not a boolean mask per block)
@@ -116,6 +149,7 @@ def one_plane(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, cc: np.ndarray, 
     shift = np.array([[1.0, -x0, -y0], [0, 1, 0], [0, 0, 1]])
     return shift @ coef, shift @ cov @ shift.T
 
+
 def _sphere_on_rays(c: np.ndarray, R: float, cam: np.ndarray, r: np.ndarray, near: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Distance along each unit ray ``r`` from ``cam`` to the sphere (the root nearest ``near``) and the unit
@@ -126,8 +160,9 @@ def _sphere_on_rays(c: np.ndarray, R: float, cam: np.ndarray, r: np.ndarray, nea
     t = np.where(np.abs(-b - root - near) <= np.abs(-b + root - near), -b - root, -b + root)
     return t, (cam + t[:, None] * r - c) / R
 
+
 def one_sphere(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndarray, model: RangeModel,
-                floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+               floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Points, normals and the normals' s.d. of one sphere through every valid pixel, when it fits within
     :data:`PLANE_FIT` × the range noise along the normal (a robust scale of the residuals); else None.
 
@@ -141,7 +176,7 @@ def one_sphere(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndarr
     if valid.sum() < 50:
         return None
     X = P[valid]
-    r = (X - cam) / np.linalg.norm(X - cam, axis=1, keepdims=True)  # each point's own direction, not the camera's ray
+    r = directions(X, cam)
     ref = X.mean(axis=0)
     Q = X - ref
     sol = np.linalg.lstsq(np.column_stack([2 * Q, np.ones(len(Q))]), np.sum(Q * Q, axis=1), rcond=None)[0]
@@ -180,21 +215,23 @@ def one_sphere(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndarr
         tk, Nk = _sphere_on_rays(centre + dv[:3], R + dv[3], cam, r, near)
         Nk[~np.isfinite(tk)] = N[~np.isfinite(tk)]
         turn2 += np.arctan2(np.linalg.norm(np.cross(Nk, N), axis=1), np.sum(Nk * N, axis=1)) ** 2
-    N = np.where((np.sum(N * r, axis=1) > 0)[:, None], -N, N)
+    N = towards(N, r)
     Ps = np.full(P.shape, np.nan)
     Ns = np.full(P.shape, np.nan)
     sds = np.full(valid.shape, np.nan)
     Ps[valid], Ns[valid], sds[valid] = cam + t[:, None] * r, N, np.sqrt(turn2)
     return Ps, Ns, sds
 
+
 def _quadric_design(u: np.ndarray) -> np.ndarray:
     """Rows ``[x², y², z², xy, xz, yz, x, y, z, 1]`` of the points ``u`` (n, 3), shape (n, 10)."""
     x, y, z = u.T
     return np.stack([x * x, y * y, z * z, x * y, x * z, y * z, x, y, z, np.ones_like(x)], axis=1)
 
+
 def _gradient_selectors() -> np.ndarray:
-    """``S`` (3, 10, 10) with each gradient row ``∂D/∂x_i = D·S[i]``: every entry of the gradient of a monomial of
-    degree ≤ 2 is a monomial of degree ≤ 1, itself a column of ``D`` (so ``Σ GᵢᵀGᵢ = Sᵢᵀ (DᵀD) Sᵢ``)."""
+    """``S`` (3, 10, 10) with each gradient row ``∂D/∂x_i = D·S[i]``: every entry of the gradient of a monomial
+    of degree ≤ 2 is a monomial of degree ≤ 1, itself a column of ``D`` (so ``Σ GᵢᵀGᵢ = Sᵢᵀ (DᵀD) Sᵢ``)."""
     S = np.zeros((3, 10, 10))
     x, y, z, one = 6, 7, 8, 9  # the columns of x, y, z and 1 in D
     for i, col in enumerate((x, y, z)):
@@ -206,7 +243,9 @@ def _gradient_selectors() -> np.ndarray:
     S[1, z, 5], S[2, y, 5] = 1.0, 1.0
     return S
 
+
 GRADIENT = _gradient_selectors()
+
 
 def _taubin(Mm: np.ndarray, Nm: np.ndarray) -> np.ndarray | None:
     """Taubin's quadric: the generalised eigenvector of ``(Σ DᵀD, Σ GᵀG)`` of the smallest finite eigenvalue."""
@@ -220,6 +259,7 @@ def _taubin(Mm: np.ndarray, Nm: np.ndarray) -> np.ndarray | None:
         return None
     a = np.real(vecs[:, np.flatnonzero(ok)[np.argmin(vals[ok])]])
     return a / np.linalg.norm(a)
+
 
 def _quadric_surface(a: np.ndarray, o: np.ndarray, rays: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Where each ray ``o + τ r`` (scaled coordinates) meets the quadric ``a`` nearest ``τ = tau``, and the unit
@@ -239,8 +279,9 @@ def _quadric_surface(a: np.ndarray, o: np.ndarray, rays: np.ndarray, tau: np.nda
     g = 2 * u @ A + b
     return t, g / np.linalg.norm(g, axis=1, keepdims=True)
 
+
 def one_quadric(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndarray, model: RangeModel,
-                 floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+                floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Points, normals and the normals' s.d. of one quadric surface (sphere, cylinder, cone, ellipsoid) through
     every valid pixel, when it fits within :data:`PLANE_FIT` × the range noise along the normal (a robust scale of
     the residuals); else None.
@@ -255,7 +296,6 @@ def one_quadric(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndar
     A plane must be tested before (:func:`one_plane`): it is a degenerate
     quadric, every plane pair through it fitting as well.
     """
-    H, W = valid.shape
     if valid.sum() < 50:
         return None
     X = P[valid]
@@ -263,9 +303,7 @@ def one_quadric(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndar
     scale = float(np.sqrt(np.mean(np.sum((X - ref) ** 2, axis=1))))
     u = (X - ref) / scale
     D = _quadric_design(u)
-    rows, cols = np.nonzero(valid)
-    block = (np.minimum(rows * JACKKNIFE_BLOCKS // H, JACKKNIFE_BLOCKS - 1) * JACKKNIFE_BLOCKS
-             + np.minimum(cols * JACKKNIFE_BLOCKS // W, JACKKNIFE_BLOCKS - 1))
+    block = jackknife_blocks(*np.nonzero(valid), valid.shape)
     present = np.unique(block)
     Mb = np.stack([D[block == k].T @ D[block == k] for k in present])
     Nb = np.einsum("iab,kac,icd->kbd", GRADIENT, Mb, GRADIENT)
@@ -273,7 +311,7 @@ def one_quadric(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndar
     if a is None:
         return None
     o = (cam - ref) / scale
-    r = (X - cam) / np.linalg.norm(X - cam, axis=1, keepdims=True)  # each point's own direction, not the camera's ray
+    r = directions(X, cam)
     tau_meas = np.linalg.norm(X - cam, axis=1) / scale
     f = D @ a
     grad = np.stack([D @ (GRADIENT[i] @ a) for i in range(3)], axis=1)
@@ -289,13 +327,7 @@ def one_quadric(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndar
     # gradient there
     miss = ~np.isfinite(t)
     t[miss], N[miss] = tau_meas[miss], n[miss]
-    # the jackknife's replicates on every JACKKNIFE_STEP-th row and column; each pixel takes its nearest such
-    # pixel's s.d. (the s.d. of a whole-surface fit varies over many pixels, not from one to the next)
-    lattice = np.zeros(valid.shape, bool)
-    lattice[::JACKKNIFE_STEP, ::JACKKNIFE_STEP] = True
-    lattice &= valid
-    if not lattice.any():
-        lattice = valid
+    lattice = jackknife_lattice(valid)
     on = lattice[valid]
     turns = []
     for k in range(len(present)):
@@ -310,9 +342,8 @@ def one_quadric(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndar
     spread = turns - turns.mean(axis=0)
     sd_lattice = np.full(valid.shape, np.nan)
     sd_lattice[lattice] = np.sqrt((g - 1) / g * np.sum(spread**2, axis=(0, 2)))
-    near = distance_transform_cdt(~lattice, metric="chessboard", return_indices=True)[1]
-    sd = sd_lattice[near[0], near[1]][valid]
-    N = np.where((np.sum(N * r, axis=1) > 0)[:, None], -N, N)
+    sd = from_nearest(sd_lattice, lattice)[valid]
+    N = towards(N, r)
     Pq = np.full(P.shape, np.nan)
     Nq = np.full(P.shape, np.nan)
     sdq = np.full(valid.shape, np.nan)

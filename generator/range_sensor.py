@@ -24,7 +24,7 @@ from typing import Literal
 import numpy as np
 
 from ..capture import Capture
-from .noise import noise_rngs
+from .noise import _with_noise, noise_rngs
 
 AXES = ("ray", "z")
 
@@ -76,8 +76,6 @@ def perturb_range(capture: Capture, *, sigma_m: float = 0.0, quantum_m: float = 
     extra = dict(capture.extra)
     if capture.N is not None:
         extra["truth_N"] = capture.N
-    meta = dict(capture.meta)
     record = {"sigma_m": float(sigma_m), "quantum_m": float(quantum_m), "axis": axis, "offset_m": offset,
               "seed": int(seed), "normals": "dropped"}
-    meta["noise"] = {**meta.get("noise", {}), "range": record}
-    return capture.replace(P=P, N=None, extra=extra, meta=meta)
+    return capture.replace(P=P, N=None, extra=extra, meta=_with_noise(capture.meta, "range", record))
