@@ -8,9 +8,9 @@ Issue 34's benchmark table. For the analytic board and sphere
 axis, a depth map's, the grid's offset drawn per seed) at one of the
 sensitivity study's two camera-noise levels, over ``--seeds`` seeds (each
 seed its own camera noise, range noise and grid offset). With a range error each method runs
-on the capture with ``P`` and ``N`` replaced by the fitted surface's
-(``nearlight.estimator.surfaces.fit_surface``: what issue 34 wires into the
-estimators). Printed per row: the lamp's RMSE over the seeds (mm), the bound
+on the capture without ``N``, its geometry the surface the estimators fit
+(``nearlight.estimator.geometry.surface_geometry``; ``rig.range`` as
+``perturb_range`` states it). Printed per row: the lamp's RMSE over the seeds (mm), the bound
 (``nearlight.evaluation.scoring.range_bound.range_crlb``, a quantum as its
 equivalent noise q/√12), their ratio and the ratio's one-sided 95 %
 bootstrap upper bound (2000 resamples of the seeds), and the failures (a
@@ -66,8 +66,6 @@ def _one(job: tuple[str, str, str, int, tuple[str, ...]]) -> dict[str, list[floa
     """Lamp position error vectors (m) of each method on one seed's capture; NaN where it refused."""
     from nearlight.errors import UserError
     from nearlight.estimator.api import METHODS as BUILT_IN
-    from nearlight.estimator.geometry import capture_rays
-    from nearlight.estimator.surfaces import fit_surface
     from nearlight.generator.analytic import DEFAULT_LAMP_POSITION
     from nearlight.generator.noise import add_camera_noise
     from nearlight.generator.range_sensor import perturb_range
@@ -77,8 +75,6 @@ def _one(job: tuple[str, str, str, int, tuple[str, ...]]) -> dict[str, list[floa
     cap = add_camera_noise(clean, noise=NOISE[noise], seed=seed)
     if RANGE[rng]:
         cap = perturb_range(cap, seed=seed, **RANGE[rng])
-        fitted = fit_surface(cap.P, clean.camera.position, capture_rays(clean))
-        cap = cap.replace(P=fitted.P.astype(np.float32), N=fitted.N)
     out = {}
     for label in methods:
         name, options = METHODS[label]

@@ -1,21 +1,22 @@
-"""What the fitted-surface geometry stage brings to ``full``: lamp error and seconds, against today's normals.
+"""What the geometry stage makes of a range sensor's error: ``full``'s lamp error and seconds.
 
 For the analytic board and sphere (``nearlight.generator.analytic``, no
 Mitsuba) at ``--resolution`` (default 320×240), ``N`` dropped and the range
 given a sensor's error (``nearlight.generator.range_sensor.perturb_range``:
 Gaussian noise along the ray; quantisation along ``z``, a depth map's, or
 along the ray, a stripe scanner's; the grid's offset drawn per seed), it
-runs ``full`` on each of ``--seeds`` seeds twice: with the normals the
-estimator derives today (``estimator.normals``: plane/quadric windows
-chosen by the noise) and with the points and normals of
-``estimator.surfaces.fit_surface``,
-and prints the lamp error's median and range over the seeds (% of the
-highlight–lamp distance), the range model the fit read off ``P``, and the
-normals' median error. Then the seconds of each normal estimator on one
-640×480 capture per row (best of 2, the same process), as a ratio.
+runs ``full`` on each of ``--seeds`` seeds (its geometry the surface that
+``estimator.geometry.surface_geometry`` fits, ``rig.range`` as
+``perturb_range`` states it) and prints the lamp error's median and range
+over the seeds (% of the highlight–lamp distance) beside ``full`` on the
+capture with its exact ``P`` and ``N``, the range model and surface the
+stage took, and the normals' median error. Then the seconds of ``full``
+(Torrance–Sparrow lobe named) on one 640×480 capture per row, with the
+capture's normals and with the fitted surface (best of 2, the same
+process), as a ratio, and the fit's own seconds.
 
-Printed, not asserted (the machine is shared); what it printed at each
-step: the docstring of ``nearlight.estimator.surfaces``.
+Printed, not asserted (the machine is shared); what it printed:
+``docs/physics.md``, "Range sensor error and the fitted surface".
 
 Usage::
 
@@ -30,9 +31,7 @@ import time
 import numpy as np
 
 from nearlight.estimator.full import full_estimate
-from nearlight.estimator.geometry import capture_rays
-from nearlight.estimator.normals import normals_from_positions
-from nearlight.estimator.surfaces import fit_surface
+from nearlight.estimator.geometry import surface_geometry
 from nearlight.evaluation.scoring.metrics import highlight_point, lamp_position_error_pct
 from nearlight.generator.analytic import DEFAULT_LAMP_POSITION, analytic_capture
 from nearlight.generator.range_sensor import perturb_range
@@ -61,46 +60,46 @@ def main() -> None:
     W, H = args.resolution
     print(f"full's lamp error (% of the highlight-lamp distance) over {args.seeds} seeds at {W}x{H}: "
           "median [min-max]\n")
-    print("| shape | range error | today's normals | fitted surface | model read off P | normal error (deg) |")
+    print("| shape | range error | full, the capture's normals | full, the fitted surface | model read off P "
+          "| normal error (deg) |")
     print("|---|---|---|---|---|---|")
     for shape in ("board", "sphere"):
         clean = analytic_capture(shape=shape, width=W, height=H)
-        rays = capture_rays(clean)
         origin = highlight_point(clean.P, clean.N, clean.camera.position, DEFAULT_LAMP_POSITION)
+        given = lamp_position_error_pct(full_estimate(clean).lamp_position, DEFAULT_LAMP_POSITION, origin=origin)
         for label, error in ROWS:
-            old, new, nerr = [], [], []
+            errs, nerr = [], []
             for seed in range(args.seeds if error else 1):
                 cap = perturb_range(clean, seed=seed, **error) if error else clean.replace(N=None)
-                fs = fit_surface(cap.P, clean.camera.position, rays)
-                ok = np.isfinite(fs.N[..., 0]) & clean.surface_mask
-                nerr.append(np.median(_angle_deg(fs.N[ok], clean.N[ok])))
-                for out, fitted in ((old, cap), (new, cap.replace(P=fs.P.astype(np.float32), N=fs.N))):
-                    est = full_estimate(fitted).lamp_position
-                    out.append(lamp_position_error_pct(est, DEFAULT_LAMP_POSITION, origin=origin))
-            m = fs.model
-            model = (f"q {m.quantum_m * 1e3:.3g} mm along {m.axis}" if m.quantum_m
-                     else f"σ {m.sigma_m * 1e3:.3g} mm along {m.axis}")
-            cell = [f"{np.median(v):.3g} [{min(v):.3g}-{max(v):.3g}]" for v in (old, new)]
-            print(f"| {shape} | {label} | {cell[0]} | {cell[1]} | {model}{' (one plane)' if fs.plane else ''} "
-                  f"| {np.median(nerr):.3g} |", flush=True)
+                geo = surface_geometry(cap)
+                ok = np.isfinite(geo.N[..., 0]) & clean.surface_mask
+                nerr.append(np.median(_angle_deg(geo.N[ok], clean.N[ok])))
+                errs.append(lamp_position_error_pct(full_estimate(cap).lamp_position, DEFAULT_LAMP_POSITION,
+                                                    origin=origin))
+            m = geo.summary["range"]
+            model = (f"q {m['quantum_m'] * 1e3:.3g} mm along {m['axis']}" if m["quantum_m"]
+                     else f"σ {m['sigma_m'] * 1e3:.3g} mm along {m['axis']}")
+            print(f"| {shape} | {label} | {given:.3g} | {np.median(errs):.3g} [{min(errs):.3g}-{max(errs):.3g}] "
+                  f"| {model} ({geo.summary['surface']}) | {np.median(nerr):.3g} |", flush=True)
     if args.no_timing:
         return
-    print("\nseconds per 640x480 capture's normals (best of 2): today's, fitted, ratio\n")
+    print("\nseconds per 640x480 capture (best of 2, one process): full with the capture's normals, full with the "
+          "fitted surface, ratio; the fit alone\n")
     for shape in ("board", "sphere"):
         clean = analytic_capture(shape=shape, width=640, height=480)
-        rays = capture_rays(clean)
         for label, error in (ROWS[0], ROWS[2], ROWS[5]):
-            cap = perturb_range(clean, seed=0, **error) if error else clean
+            cap = perturb_range(clean, seed=0, **error) if error else clean.replace(N=None)
             t = []
-            for fn in (lambda: normals_from_positions(cap.P, clean.camera.position),
-                       lambda: fit_surface(cap.P, clean.camera.position, rays)):
+            for fn in (lambda: full_estimate(clean, lobe="torrance-sparrow"),
+                       lambda: full_estimate(cap, lobe="torrance-sparrow"), lambda: surface_geometry(cap)):
                 best = np.inf
                 for _ in range(2):
                     t0 = time.perf_counter()
                     fn()
                     best = min(best, time.perf_counter() - t0)
                 t.append(best)
-            print(f"  {shape:6s} {label:18s} {t[0]:6.3f} s  {t[1]:6.3f} s  x{t[1] / t[0]:.2f}", flush=True)
+            print(f"  {shape:6s} {label:18s} {t[0]:6.3f} s  {t[1]:6.3f} s  x{t[1] / t[0]:.2f}  (fit {t[2]:.3f} s)",
+                  flush=True)
 
 
 if __name__ == "__main__":

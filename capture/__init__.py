@@ -2,7 +2,8 @@
 
 Specified in ``docs/capture-format.md``; :mod:`nearlight.capture.format` is its
 one reference implementation (reading, writing, the :class:`Capture` and
-:class:`Camera`, :class:`Intrinsics`, :class:`LampFilter`, :class:`Rig` and :class:`Sensor` records).
+:class:`Camera`, :class:`Intrinsics`, :class:`LampFilter`, :class:`RangeSensor`, :class:`Rig` and
+:class:`Sensor` records).
 """
 
 from .format import (
@@ -15,6 +16,7 @@ from .format import (
     Capture,
     Intrinsics,
     LampFilter,
+    RangeSensor,
     Rig,
     Sensor,
     capture_json,
@@ -32,6 +34,7 @@ __all__ = [
     "Capture",
     "Intrinsics",
     "LampFilter",
+    "RangeSensor",
     "Rig",
     "Sensor",
     "capture_json",

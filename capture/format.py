@@ -152,6 +152,38 @@ class LampFilter:
     aim: tuple[float, float, float]
 
 
+#: ``rig.range.axis``: the distance along each camera ray, or the depth along the optical axis.
+RANGE_AXES = ("ray", "z")
+#: ``rig.range.source``: where the range came from.
+RANGE_SOURCES = ("depth-map", "light-stripe", "time-of-flight", "mesh", "renderer", "unknown")
+#: The keys of ``capture.json``'s ``rig.range``, in order.
+RANGE_KEYS = ("sigma_m", "quantum_m", "axis", "source")
+
+
+@dataclasses.dataclass(frozen=True)
+class RangeSensor:
+    """The range sensor's error as a rig states it (``rig.range``, v2): Gaussian noise and quantisation.
+
+    Attributes
+    ----------
+    sigma_m : float
+        Standard deviation of the Gaussian range noise, metres, >= 0.
+    quantum_m : float
+        Step of the depth's quantisation, metres, >= 0 (0: not quantised).
+    axis : {"ray", "z"}
+        Along what the noise and the steps are: ``"ray"``, the distance along
+        each camera ray (a light stripe, time of flight, the generator), or
+        ``"z"``, the depth along the optical axis (what a depth map stores).
+    source : {"depth-map", "light-stripe", "time-of-flight", "mesh", "renderer", "unknown"}
+        Where the range came from.
+    """
+
+    sigma_m: float = 0.0
+    quantum_m: float = 0.0
+    axis: str = "ray"
+    source: str = "unknown"
+
+
 @dataclasses.dataclass(frozen=True)
 class Rig:
     """What a rig knows about itself by calibration (``capture.json``'s ``rig``, v2); estimators may use it.
@@ -171,6 +203,9 @@ class Rig:
         Every lamp's filter, when the rig knows it; None: unknown. With
         several lamps it lets an estimator predict each lamp's polarization
         angle (``rig.lamp_filter``).
+    range : RangeSensor or None
+        The range sensor's error (``rig.range``); None: not stated, and
+        estimators then measure it from ``P``.
     other : dict
         Every other key of ``rig`` (kept on a round trip).
     """
@@ -179,6 +214,7 @@ class Rig:
     analyzer_extinction_ratio: float | None = None
     lamp_polarizer_extinction_ratio: float | None = None
     lamp_filter: LampFilter | None = None
+    range: RangeSensor | None = None
     other: dict[str, Any] = dataclasses.field(default_factory=dict)
 
 
@@ -517,6 +553,7 @@ def _rig(x: Any, where: Path) -> Rig:
             other.pop("lamp_polarizer_extinction_ratio", None), where, "rig.lamp_polarizer_extinction_ratio"
         ),
         lamp_filter=_lamp_filter(other.pop("lamp_filter", None), where),
+        range=_range_sensor(other.pop("range", None), where),
         other=other,
     )
 
@@ -536,6 +573,29 @@ def _lamp_filter(x: Any, where: Path) -> LampFilter | None:
     if not np.linalg.norm(out["axis"]) > 0:
         raise UserError(f"{where}: rig.lamp_filter.axis: expected a nonzero vector, got {x['axis']!r}")
     return LampFilter(**out)
+
+
+def _range_sensor(x: Any, where: Path) -> RangeSensor | None:
+    """``rig.range`` of a v2 ``capture.json``: ``{sigma_m, quantum_m, axis[, source]}`` (absent or null: None)."""
+    if x is None:
+        return None
+    if not isinstance(x, dict):
+        raise UserError(f"{where}: rig.range: expected an object {{{', '.join(RANGE_KEYS)}}}, got {x!r}")
+    unknown = [k for k in x if k not in RANGE_KEYS]
+    if unknown:
+        raise UserError(f"{where}: rig.range.{unknown[0]}: unknown key (expected {', '.join(RANGE_KEYS)})")
+    for key in ("sigma_m", "quantum_m"):
+        if key not in x:
+            raise UserError(f"{where}: rig.range.{key}: missing (expected a number >= 0, metres)")
+        if not (is_number(x[key]) and x[key] >= 0):
+            raise UserError(f"{where}: rig.range.{key}: expected a number >= 0 (metres), got {x[key]!r}")
+    axis = x.get("axis")
+    if not (isinstance(axis, str) and axis in RANGE_AXES):
+        raise UserError(f"{where}: rig.range.axis: expected \"ray\" or \"z\", got {axis!r}")
+    source = x.get("source", "unknown")
+    if not (isinstance(source, str) and source in RANGE_SOURCES):
+        raise UserError(f"{where}: rig.range.source: expected one of {', '.join(RANGE_SOURCES)}, got {source!r}")
+    return RangeSensor(sigma_m=float(x["sigma_m"]), quantum_m=float(x["quantum_m"]), axis=axis, source=source)
 
 
 def _intrinsics(x: Any, where: Path) -> Intrinsics | None:
@@ -738,6 +798,9 @@ def capture_json(capture: Capture) -> dict[str, Any]:
             doc["rig"][key] = float(getattr(rig, key))
     if rig.lamp_filter is not None:
         doc["rig"]["lamp_filter"] = {"axis": _list(rig.lamp_filter.axis), "aim": _list(rig.lamp_filter.aim)}
+    if rig.range is not None:
+        doc["rig"]["range"] = {"sigma_m": float(rig.range.sigma_m), "quantum_m": float(rig.range.quantum_m),
+                               "axis": str(rig.range.axis), "source": str(rig.range.source)}  # fmt: skip
     for key, value in rig.other.items():
         doc["rig"].setdefault(key, jsonable(value))
     if capture.sensor is not None:

@@ -17,7 +17,8 @@ from .options import check_options
 from .first_stage import initial_estimate
 from .paper import paper_estimate
 from .result import Estimate
-from .observation import shared_observations
+from .geometry import surface_geometry
+from .observation import already_shared, shared_observations
 from .sanity import review
 
 #: Built-in methods: ``fn(capture, **options) -> Estimate``.
@@ -114,6 +115,9 @@ def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", san
     with shared_observations():  # the rules read the observation the method made
         clock = time.perf_counter()
         result = _run(fn, capture, method, options)
+        geometry = already_shared(surface_geometry, capture)
+        if geometry is not None:
+            result.diagnostics.setdefault("geometry", geometry.summary)
         if not result.timings:
             result.timings["total"] = time.perf_counter() - clock
         if sanity and result.ok:

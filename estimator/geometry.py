@@ -1,8 +1,9 @@
 """A capture's surface geometry: points, normals and view directions, range holes filled, the range checked.
 
 :func:`surface_geometry` gives every pixel's surface point ``P``, unit normal
-``N`` (the capture's, else fitted to ``P``:
-:func:`~nearlight.estimator.normals.normals_from_positions`), the unit vector
+``N`` (the capture's, else the surface fitted to ``P``, its points too:
+:func:`~nearlight.estimator.surfaces.fit_surface`, the range's error
+stated by ``rig.range`` or measured: :func:`range_model`), the unit vector
 ``V`` to the camera and ``cos θr``; pixels the range finder missed inside the
 surface (:func:`enclosed_holes`) get a point and normal from a quadric fitted
 to the range around them (:func:`fill_range_holes`), along the capture's
@@ -12,6 +13,8 @@ that does not match the capture's camera. Metres, world frame, float64.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from scipy.ndimage import distance_transform_edt, find_objects, label
 
@@ -19,7 +22,9 @@ from ..capture import Capture
 from ..errors import UserError
 from ..physics.camera import camera_rays, project
 from ..physics.reflectance import channel_sum, every_channel, normalize
-from .normals import normals_from_positions
+from .pinhole import optical_axis, pinhole_matrix
+from .range_error import RangeModel, measured_range
+from .surfaces import fit_surface
 
 #: How far (median over surface pixels) the rays from the camera through ``P``
 #: may miss their pixels before a capture is refused as inconsistent with its
@@ -317,39 +322,105 @@ def fill_range_holes(P: np.ndarray, holes: np.ndarray, rays: np.ndarray, camera_
     return P_fill, N_fill
 
 
-def surface_geometry(capture: Capture) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                 np.ndarray]:
-    """``P, N, V, cos_r, surface, filled`` of a capture (see :class:`Observation`).
+@dataclasses.dataclass(frozen=True)
+class SurfaceGeometry:
+    """A capture's surface as every method sees it (:func:`surface_geometry`); metres, world frame, float64.
 
-    Range holes (:func:`enclosed_holes`) are filled first (:func:`fill_range_holes`:
-    the filled pixels' ``P`` and ``N`` are the fit's); normals absent from the
-    capture are then derived from ``P`` with the holes filled
-    (:func:`~nearlight.estimator.normals.normals_from_positions`), so that the
-    measured pixels around a hole keep whole windows: a window cut by the
-    hole would give the normal at its off-centre centroid, off by a fraction
-    of pixel footprint / curvature radius (measured next to holes of radius
-    2 and 4 px on the 0.15-m analytic sphere at 160×120: 0.24° and 0.61°,
-    against 0.012° with whole windows).
+    Attributes
+    ----------
+    P, N : ndarray, shape (H, W, 3)
+        Surface points and unit normals (towards the camera): the capture's
+        ``N`` with its ``P`` when it has normals, else the surface fitted to
+        the range (:func:`~nearlight.estimator.surfaces.fit_surface`: its
+        points, the range's noise fitted away, and its normals); at
+        ``filled`` pixels those of the fit; NaN elsewhere off the surface.
+    V : ndarray, shape (H, W, 3)
+        Unit vectors from the surface to the camera.
+    cos_r : ndarray, shape (H, W)
+        ``N·V``; 0 off the surface.
+    surface : ndarray, shape (H, W), bool
+        Pixels with a measured position and a normal facing the camera.
+    filled : ndarray, shape (H, W), bool
+        Pixels inside range holes with a fitted point and normal facing the camera.
+    summary : dict
+        What the geometry came from, for the estimate's ``diagnostics["geometry"]``:
+        ``normals`` (``"capture"`` or ``"fitted"``) and, when fitted, ``surface``
+        (the fit's kind: ``plane``, ``sphere``, ``quadric`` or ``local``), ``range``
+        (the range error assumed: ``sigma_m``, ``quantum_m``, ``axis``, ``source``
+        ``rig`` or ``measured``) and ``normal_sd_deg`` (the median over the
+        surface of each normal's standard deviation from the range's error).
+    """
+
+    P: np.ndarray
+    N: np.ndarray
+    V: np.ndarray
+    cos_r: np.ndarray
+    surface: np.ndarray
+    filled: np.ndarray
+    summary: dict
+
+
+def range_model(capture: Capture, P: np.ndarray, valid: np.ndarray, rays: np.ndarray) -> RangeModel:
+    """The range's error: the capture's ``rig.range`` when it states one, else measured from ``P``
+    (:func:`~nearlight.estimator.range_error.measured_range`, on the measured pixels ``valid``)."""
+    stated = capture.rig.range
+    if stated is not None:
+        return RangeModel(sigma_m=stated.sigma_m, quantum_m=stated.quantum_m, axis=stated.axis, source="rig")
+    cam = np.asarray(capture.camera.position, dtype=float)
+    return measured_range(P, cam, valid, optical_axis(pinhole_matrix(rays)))
+
+
+def surface_geometry(capture: Capture) -> SurfaceGeometry:
+    """The surface of a capture as every method sees it (see :class:`SurfaceGeometry`).
+
+    Checks the channels' shapes and the range against the camera
+    (:func:`check_shapes`, :func:`check_rays`), fills range holes
+    (:func:`enclosed_holes`, :func:`fill_range_holes`), and, when the capture
+    has no normals, fits the surface to the range with the holes filled
+    (:func:`~nearlight.estimator.surfaces.fit_surface`), its error model
+    :func:`range_model`'s, read on the measured pixels only (a filled
+    point is on no sensor's lattice): so the measured pixels around a hole keep
+    whole windows, and a filled pixel on a plane or sphere gets the whole
+    fit's point and normal, not its ring's. Once per capture inside
+    :func:`~nearlight.estimator.observation.shared_observations`.
     """
     check_shapes(capture)
+    check_rays(capture)
     cam = np.asarray(capture.camera.position, dtype=float)
     P = np.array(capture.P, dtype=float)  # a copy: the observation's own
     measured = every_channel(np.isfinite(P))
     holes = enclosed_holes(P)
-    rays = capture_rays(capture) if holes.any() else None
+    fit_normals = capture.N is None
+    rays = capture_rays(capture) if (holes.any() or fit_normals) else None
     filled = np.zeros(holes.shape, bool)
-    if rays is not None:
+    N_fill = None
+    if rays is not None and holes.any():
         P_fill, N_fill = fill_range_holes(P, holes, rays, cam)
         filled = every_channel(np.isfinite(P_fill))
         P[filled] = P_fill[filled]
-    if capture.N is not None:
+    summary: dict = {"normals": "capture"}
+    if not fit_normals:
         N = normalize(np.asarray(capture.N, dtype=float))
+        if filled.any():
+            N[filled] = N_fill[filled]
+    elif rays is None:
+        N = np.full(P.shape, np.nan)  # fewer than 8 finite points: no camera to fit a surface through
+        summary = {"normals": "fitted", "surface": "none"}
     else:
-        N = normals_from_positions(P, cam)
-    if filled.any():
-        N[filled] = N_fill[filled]
-    finite = (measured | filled) & every_channel(np.isfinite(N))
+        model = range_model(capture, P, measured, rays)
+        fit = fit_surface(P, cam, rays, model=model, valid=measured | filled)
+        N = fit.N
+        fitted = every_channel(np.isfinite(fit.P)) & every_channel(np.isfinite(N))
+        P = np.where(fitted[..., None], fit.P, P)
+        if filled.any():
+            lost = filled & ~fitted
+            P[lost], N[lost] = P_fill[lost], N_fill[lost]
+        sd = fit.sd_rad[measured & fitted]
+        summary = {"normals": "fitted", "surface": fit.kind, "range": dataclasses.asdict(model),
+                   "normal_sd_deg": float(np.degrees(np.nanmedian(sd))) if np.isfinite(sd).any() else None}
+    finite = (measured | filled) & every_channel(np.isfinite(N)) & every_channel(np.isfinite(P))
     V = normalize(cam - np.where(finite[..., None], P, 0.0))
     cos_r = np.where(finite, channel_sum(np.where(finite[..., None], N, 0.0) * V), 0.0)
     facing = finite & (cos_r > 0)
-    return P, N, V, cos_r, facing & measured, facing & filled
+    return SurfaceGeometry(P=P, N=N, V=V, cos_r=cos_r, surface=facing & measured, filled=facing & filled,
+                           summary=summary)

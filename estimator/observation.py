@@ -23,7 +23,7 @@ from ..capture import Capture
 from ..capture.silhouette import check_silhouette
 from ..errors import UserError
 from ..physics.reflectance import channel_sum, every_channel, normalize
-from .geometry import check_rays, check_shapes, surface_geometry
+from .geometry import SurfaceGeometry, check_shapes, surface_geometry
 from .separation import separate_capture
 
 T = TypeVar("T")
@@ -42,16 +42,11 @@ class Observation:
     ----------
     specular : ndarray, shape (H, W, 3)
         Specular radiance (separated or given); 0 off the surface.
-    P, N : ndarray, shape (H, W, 3)
-        Positions and unit normals; at ``filled`` pixels those of the fit
-        around the range hole; NaN elsewhere off the surface.
-    V : ndarray, shape (H, W, 3)
-        Unit vectors from the surface to the camera.
-    cos_r : ndarray, shape (H, W)
-        cos θr = N·V.
-    surface : ndarray, shape (H, W), bool
-        Pixels with a finite measured position and a normal facing the
-        camera: the only pixels any fit uses.
+    geometry : SurfaceGeometry
+        The capture's surface (:func:`~nearlight.estimator.geometry.surface_geometry`):
+        ``P``, ``N``, ``V``, ``cos_r`` and ``surface`` are its (properties here), and its
+        ``summary`` says what they came from (the capture's normals, or the surface
+        fitted to the range and the range error it assumed).
     filled : ndarray, shape (H, W), bool
         Pixels inside range holes (:func:`~nearlight.estimator.geometry.enclosed_holes`) whose point and
         normal come from :func:`~nearlight.estimator.geometry.fill_range_holes`, facing the camera, with a
@@ -73,16 +68,39 @@ class Observation:
     """
 
     specular: np.ndarray
-    P: np.ndarray
-    N: np.ndarray
-    V: np.ndarray
-    cos_r: np.ndarray
-    surface: np.ndarray
+    geometry: SurfaceGeometry
     filled: np.ndarray
     mask: np.ndarray
     peak: tuple[int, int]
     camera_position: np.ndarray
     scale: float
+
+    @property
+    def P(self) -> np.ndarray:
+        """``[H, W, 3]`` surface points, metres; at ``filled`` pixels the fit's around the range hole; NaN elsewhere
+        off the surface."""
+        return self.geometry.P
+
+    @property
+    def N(self) -> np.ndarray:
+        """``[H, W, 3]`` unit normals (towards the camera), as ``P``."""
+        return self.geometry.N
+
+    @property
+    def V(self) -> np.ndarray:
+        """``[H, W, 3]`` unit vectors from the surface to the camera."""
+        return self.geometry.V
+
+    @property
+    def cos_r(self) -> np.ndarray:
+        """``[H, W]`` cos θr = N·V."""
+        return self.geometry.cos_r
+
+    @property
+    def surface(self) -> np.ndarray:
+        """``[H, W]`` bool: pixels with a finite measured position and a normal facing the camera, the only pixels
+        any fit uses."""
+        return self.geometry.surface
 
     @property
     def located(self) -> np.ndarray:
@@ -251,6 +269,14 @@ def shared_observations() -> Iterator[None]:
         _SHARED.reset(token)
 
 
+def already_shared(compute: Callable[..., T], *of: object, **options: object) -> T | None:
+    """What :func:`shared` computed for these arguments inside the current block; None when it has not (or outside
+    one): for reports on what a method used without computing it for a method that did not."""
+    store = _SHARED.get()
+    entry = None if store is None else store.get((compute, *map(id, of), *sorted(options.items())))
+    return None if entry is None else entry[1]
+
+
 def shared(compute: Callable[..., T], *of: object, **options: object) -> T:
     """``compute(*of, **options)``, once per function, argument objects and options inside
     :func:`shared_observations` (every time outside it). The arguments are keyed by identity: only for
@@ -290,11 +316,11 @@ def observation_of(capture: Capture, *, separation: str = "fit", threshold: floa
 
 def _observation_of(capture: Capture, *, separation: str, threshold: float) -> Observation:
     """:func:`observation_of`, made afresh."""
-    P, N, V, cos_r, surface, filled = surface_geometry(capture)
-    check_rays(capture)
+    geometry = shared(surface_geometry, capture)
+    P, surface = geometry.P, geometry.surface
     check_silhouette(capture)  # a mirrored range passes check_rays (capture/silhouette.py)
     spec = specular_image(capture, separation=separation)
-    filled &= every_channel(np.isfinite(spec))
+    filled = geometry.filled & every_channel(np.isfinite(spec))
     located = surface | filled
     spec = np.where(located[..., None], spec, 0.0)
     lum = channel_sum(spec) / 3  # spec.mean(axis=-1), bit for bit
@@ -323,11 +349,7 @@ def _observation_of(capture: Capture, *, separation: str, threshold: float) -> O
     cam = np.asarray(capture.camera.position, dtype=float)
     return Observation(
         specular=spec,
-        P=P,
-        N=N,
-        V=V,
-        cos_r=cos_r,
-        surface=surface,
+        geometry=geometry,
         filled=filled,
         mask=mask,
         peak=(int(i), int(j)),

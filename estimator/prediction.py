@@ -51,7 +51,8 @@ def render_specular(capture: Capture, estimate: Estimate) -> np.ndarray:
     ndarray, shape (H, W, 3)
         Specular radiance, float64; 0 off the surface.
     """
-    P, N, _, _, surface, _ = surface_geometry(capture)
+    geometry = surface_geometry(capture)
+    P, N, surface = geometry.P, geometry.N, geometry.surface
     out = np.zeros((capture.height, capture.width, 3))
     out[surface] = specular_at(P[surface], N[surface], np.asarray(capture.camera.position, dtype=float), estimate)
     return out

@@ -96,13 +96,57 @@ def _lattice(depth: np.ndarray) -> float:
     return 0.0
 
 
+def range_noise(P: np.ndarray, camera_position: np.ndarray, valid: np.ndarray | None = None) -> float:
+    """Standard deviation of the range noise, metres, from fourth differences of the range along rows and columns.
+
+    A smooth surface's range has fourth differences of order ``h⁴ / R³``
+    (nanometres for a 15-cm sphere at millimetre pixels) where independent
+    noise of standard deviation ``σ_r`` has ``√70 σ_r`` (70 = Σ of the squared
+    binomial weights 1, 4, 6, 4, 1); so ``σ_r = 1.4826 · median|Δ⁴ d| / √70``
+    over every run of five surface pixels along rows, and along columns, the
+    larger of the two: robust to the silhouettes' and holes' few large
+    values, and blind to curvature (which plane-fit residuals would take for
+    noise). Depth quantised in steps ``q`` on a slanted surface reads as
+    ``≈ q/√12`` along the axis the steps cross (along the other, for a camera
+    without roll, the depth is constant and its differences zero).
+
+    Parameters
+    ----------
+    P : ndarray, shape (H, W, 3)
+    camera_position : ndarray, shape (3,)
+    valid : ndarray of bool, shape (H, W), optional
+
+    Returns
+    -------
+    float
+        NaN when no row or column holds five surface pixels in a run.
+    """
+    P = np.asarray(P, dtype=float)
+    valid = np.all(np.isfinite(P), axis=-1) if valid is None else valid
+    d = np.linalg.norm(np.where(valid[..., None], P, 0.0) - np.asarray(camera_position, dtype=float), axis=-1)
+    w = np.array([1.0, -4.0, 6.0, -4.0, 1.0])
+    sigmas = []
+    for axis in (0, 1):
+        dd, vv = np.moveaxis(d, axis, -1), np.moveaxis(valid, axis, -1)
+        n = dd.shape[-1] - 4
+        if n <= 0:
+            continue
+        fourth = sum(w[k] * dd[..., k:k + n] for k in range(5))
+        run = np.logical_and.reduce([vv[..., k:k + n] for k in range(5)])
+        if run.any():
+            sigmas.append(float(1.4826 * np.median(np.abs(fourth[run])) / np.sqrt(70.0)))
+    # the larger of the two axes: depth quantised along a camera without roll is constant along rows
+    # (zero fourth differences there), so a median over both would read the steps as no noise
+    return max(sigmas) if sigmas else np.nan
+
+
 def measured_range(P: np.ndarray, camera_position: np.ndarray, valid: np.ndarray, axis: np.ndarray) -> RangeModel:
     """The range sensor's error read off ``P``: a lattice along ``z`` or along the ray, else Gaussian noise.
 
     Quantisation is found as depths on a lattice (:func:`_lattice`);
     otherwise the noise is measured from fourth differences
     of the distance along the ray
-    (:func:`nearlight.estimator.normals.range_noise`).
+    (:func:`range_noise`).
 
     Parameters
     ----------
@@ -112,8 +156,6 @@ def measured_range(P: np.ndarray, camera_position: np.ndarray, valid: np.ndarray
     axis : ndarray, shape (3,)
         The optical axis.
     """
-    from .normals import range_noise
-
     # fourth differences of neighbours miss errors correlated over a few pixels (a staircase blurred by a
     # sub-pixel misregistration's interpolation: the bench profile's torus reads 0.030 mm at stride 1, 0.038 mm at
     # stride 2), which the windows' slopes see at their full size; at stride 2 a curved surface's own fourth

@@ -1,10 +1,10 @@
 """Surface points and normals fitted to the range data: one surface where one fits, else windows the noise chooses.
 
-Staged for issue 34: tested (``tests/estimator/test_surfaces.py``) and
-measured (``benchmarks/bench_surfaces.py``), not yet what
-:class:`~nearlight.estimator.observation.Observation` uses (that change
-regenerates every committed report, so it lands with the capture's
-``rig.range`` and the bound's report columns).
+What every method's :class:`~nearlight.estimator.observation.Observation`
+takes when a capture has no normals
+(:func:`~nearlight.estimator.geometry.surface_geometry`); tested in
+``tests/estimator/test_surfaces.py``, measured by
+``benchmarks/bench_surfaces.py`` and ``benchmarks/bench_range_bound.py``.
 
 Why inverse depth over pixels
 -----------------------------

@@ -76,18 +76,21 @@ Range noise
 distance (one standard normal per pixel from the range stream). A real range
 finder gives no normals, and exact normals would not match noisy positions, so
 ``N`` is **dropped** (the estimator then derives normals from ``P``); the exact
-normals stay in ``extra["truth_N"]``.
+normals stay in ``extra["truth_N"]``. The capture's ``rig.range`` states the
+noise (:func:`with_range_sensor`: ``sigma_m``, ``axis: ray``, ``source:
+renderer``), so an estimator need not measure it from ``P``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 from scipy.special import ndtr
 
-from ..capture import Capture, Sensor
+from ..capture import Capture, RangeSensor, Sensor
 from ..physics.camera import auto_saturation
 from .scene import NoiseSpec
 
@@ -299,7 +302,9 @@ def add_range_noise(capture: Capture, *, sigma_m: float, seed: int) -> Capture:
     -------
     Capture
         ``P`` moved along ``P - camera.position``; ``N`` None, exact normals in
-        ``extra["truth_N"]``; ``meta["noise"]["range"]`` records the settings.
+        ``extra["truth_N"]``; ``meta["noise"]["range"]`` records the settings;
+        ``rig.range.sigma_m`` states ``sigma_m`` (:func:`with_range_sensor`: an
+        existing ``rig.range``'s quantisation, axis and source are kept).
     """
     if sigma_m < 0:
         raise ValueError(f"sigma_m must be >= 0, got {sigma_m}")
@@ -313,7 +318,38 @@ def add_range_noise(capture: Capture, *, sigma_m: float, seed: int) -> Capture:
     if capture.N is not None:
         extra["truth_N"] = capture.N
     record = {"sigma_m": float(sigma_m), "seed": int(seed), "normals": "dropped"}
-    return capture.replace(P=P, N=None, extra=extra, meta=_with_noise(capture.meta, "range", record))
+    out = capture.replace(P=P, N=None, extra=extra, meta=_with_noise(capture.meta, "range", record))
+    return with_range_sensor(out, sigma_m=sigma_m)
+
+
+def with_range_sensor(capture: Capture, *, sigma_m: float | None = None, quantum_m: float | None = None,
+                      axis: str | None = None, source: str | None = None) -> Capture:
+    """A copy of ``capture`` whose ``rig.range`` states the range sensor's error (the one place the generator sets it).
+
+    Parameters
+    ----------
+    capture : Capture
+    sigma_m, quantum_m : float or None
+        Noise standard deviation and quantisation step, metres; None keeps the
+        capture's ``rig.range`` value (0 when it has none).
+    axis : {"ray", "z"} or None
+        None keeps the capture's (``"ray"`` when it has none).
+    source : str or None
+        None keeps the capture's (``"renderer"`` when it has none).
+
+    Returns
+    -------
+    Capture
+        With ``rig.range`` a :class:`~nearlight.capture.RangeSensor` of these values.
+    """
+    old = capture.rig.range or RangeSensor(axis="ray", source="renderer")
+    stated = RangeSensor(
+        sigma_m=float(old.sigma_m if sigma_m is None else sigma_m),
+        quantum_m=float(old.quantum_m if quantum_m is None else quantum_m),
+        axis=old.axis if axis is None else axis,
+        source=old.source if source is None else source,
+    )
+    return capture.replace(rig=dataclasses.replace(capture.rig, range=stated))
 
 
 def _with_noise(meta: Mapping[str, Any], kind: str, record: dict) -> dict:

@@ -33,7 +33,8 @@ Order, as light and data go through a rig
 6. range noise (``capture.range_noise_m``), then depth quantisation, then the
    misregistration shift, then holes (``nuisances.range``); any of the last
    three drops ``N`` (exact normals kept in ``truth_N``) and keeps the exact
-   positions in ``truth_P``;
+   positions in ``truth_P``; with noise or quantisation, ``rig.range`` states
+   both (along the ray, source ``renderer``);
 7. calibration (``nuisances.calibration``): the capture's ``camera`` becomes
    the true one moved by the given amounts; ``truth.camera`` keeps the true one.
 
@@ -59,7 +60,7 @@ import numpy as np
 from ..capture import Camera, Capture
 from ..physics.camera import auto_saturation, response, vignetting_gain
 from ..physics.polarization import analyzer_stack, linear_stokes
-from .noise import RECORDED, add_camera_noise, add_range_noise
+from .noise import RECORDED, add_camera_noise, add_range_noise, with_range_sensor
 from .realism import expand
 from .scene import NoiseSpec, Nuisances, Scene, euler_rotation
 
@@ -138,6 +139,8 @@ def through_rig(
         record["camera"]["response_white"] = white
     cap = add_range_noise(cap, sigma_m=range_noise, seed=seed)
     cap = _range(cap, clean, nz)
+    if range_noise > 0 or nz.range.quantum_m > 0:  # what the rig states of its range sensor (rig.range)
+        cap = with_range_sensor(cap, sigma_m=range_noise, quantum_m=nz.range.quantum_m, axis="ray", source="renderer")
     cap = _calibration(cap, nz)
     if nuisances is None and realism == "none":
         return cap

@@ -24,7 +24,7 @@ from typing import Literal
 import numpy as np
 
 from ..capture import Capture
-from .noise import _with_noise, noise_rngs
+from .noise import _with_noise, noise_rngs, with_range_sensor
 
 AXES = ("ray", "z")
 
@@ -50,7 +50,8 @@ def perturb_range(capture: Capture, *, sigma_m: float = 0.0, quantum_m: float = 
     -------
     Capture
         ``P`` moved along each ray (float32, as the generator writes it); ``N`` None with the exact normals
-        in ``extra["truth_N"]``; ``meta["noise"]["range"]`` records the settings and the offset drawn.
+        in ``extra["truth_N"]``; ``meta["noise"]["range"]`` records the settings and the offset drawn;
+        ``rig.range`` states them (``source`` ``"renderer"``).
     """
     if axis not in AXES:
         raise ValueError(f"axis must be one of {AXES}, got {axis!r}")
@@ -78,4 +79,5 @@ def perturb_range(capture: Capture, *, sigma_m: float = 0.0, quantum_m: float = 
         extra["truth_N"] = capture.N
     record = {"sigma_m": float(sigma_m), "quantum_m": float(quantum_m), "axis": axis, "offset_m": offset,
               "seed": int(seed), "normals": "dropped"}
-    return capture.replace(P=P, N=None, extra=extra, meta=_with_noise(capture.meta, "range", record))
+    out = capture.replace(P=P, N=None, extra=extra, meta=_with_noise(capture.meta, "range", record))
+    return with_range_sensor(out, sigma_m=sigma_m, quantum_m=quantum_m, axis=axis, source="renderer")

@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..capture import Camera, Capture, Intrinsics, Sensor, write_capture
+from ..capture import Camera, Capture, Intrinsics, RangeSensor, Rig, Sensor, write_capture
 from ..capture.silhouette import mirrored
 from ..errors import UserError
 from ..files.outputs import check_capture_out
@@ -108,7 +108,8 @@ def rig_capture(rig: RigFile) -> Capture:
         a mesh, None from a depth map, the camera with ``intrinsics``, ``pose`` as ``to_world``
         (Mitsuba's axes), ``fov_x_deg`` when the principal point is the image
         centre and pixels are square; ``sensor`` for a single shot with a known
-        noise model.
+        noise model; ``rig.range`` for an integer depth map whose rotation to
+        the camera is the identity (its steps, ``depth.scale``, along ``z``).
     """
     stacks, saturated = [], []
     angles = None
@@ -131,7 +132,11 @@ def rig_capture(rig: RigFile) -> Capture:
             raise UserError(f"{rig.path}: camera.distortion: undistorting with these coefficients leaves "
                             f"{100 * after:.0f} % of the image with signal (the frames have {100 * lit:.0f} %): "
                             "check their order (OpenCV's: k1 k2 p1 p2 [k3 ...]) and their size")  # fmt: skip
-    P, N = mesh_geometry(rig) if rig.mesh is not None else (_depth_points(rig), None)
+    stated = None
+    if rig.mesh is not None:
+        P, N = mesh_geometry(rig)
+    else:
+        (P, stated), N = _depth_points(rig), None
     if rig.mesh is None:
         check_depth_silhouette(rig, stack, P)
     cam = rig.camera
@@ -153,6 +158,7 @@ def rig_capture(rig: RigFile) -> Capture:
         stack=stack.astype(np.float32),
         analyzer_angles_deg=np.asarray(angles, float),
         sensor=sensor,
+        rig=Rig(range=stated),
         meta={"imported": {"rig_file": str(rig.path), "shots": len(rig.shots), "mosaic": rig.mosaic}},
     )
 
@@ -308,8 +314,10 @@ def _check_depth_distortion(rig: RigFile, xy: np.ndarray, pixels: np.ndarray) ->
                         "order (OpenCV's: k1 k2 p1 p2 [k3 ...]) and their size")  # fmt: skip
 
 
-def _depth_points(rig: RigFile) -> np.ndarray:
-    """``P`` ``[H, W, 3]`` in the world frame from the depth map (z along the depth sensor's axis)."""
+def _depth_points(rig: RigFile) -> tuple[np.ndarray, RangeSensor | None]:
+    """``P`` ``[H, W, 3]`` in the world frame from the depth map (z along the depth sensor's axis), and what the
+    capture's ``rig.range`` states: an integer file's steps (``quantum_m`` the depth scale, along ``z``) when the
+    depth sensor's rotation to the camera is the identity (its ``z`` then the camera's), else None."""
     key = "depth.file"
     raw = read_raw(rig.depth_file, key=key, rig_file=rig.path)
     h, w = raw.shape
@@ -353,4 +361,7 @@ def _depth_points(rig: RigFile) -> np.ndarray:
     if not np.isfinite(P).all(axis=-1).any():
         raise UserError(f"{rig.path}: {key}: {rig.depth_file.name}: no depth lands in the camera's image "
                         "(check depth.to_camera, the intrinsics and depth.scale)")  # fmt: skip
-    return P
+    stated = None
+    if raw.dtype.kind in "ui" and np.allclose(rig.depth_to_camera[:3, :3], np.eye(3), atol=1e-12):
+        stated = RangeSensor(quantum_m=float(scale), axis="z", source="depth-map")
+    return P, stated

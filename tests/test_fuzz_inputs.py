@@ -475,6 +475,32 @@ def _json_mutation_cases() -> None:
             path.write_text(json.dumps(doc))
             return _estimate_argv(cap, folder), key.split(".")[-1]
 
+    # rig.range (v2): the error names the key inside rig.range
+    ok_range = {"sigma_m": 0.001, "quantum_m": 0.0, "axis": "ray"}
+    bad_range: list[tuple[str, Any, str]] = [
+        ("not-object", "laser", "rig.range"),
+        ("list", [0.001, 0.0, "ray"], "rig.range"),
+        ("unknown-key", {**ok_range, "gain": 2}, "rig.range.gain"),
+        ("sigma-negative", {**ok_range, "sigma_m": -0.001}, "rig.range.sigma_m"),
+        ("sigma-string", {**ok_range, "sigma_m": "1mm"}, "rig.range.sigma_m"),
+        ("sigma-nan-string", {**ok_range, "sigma_m": "NaN"}, "rig.range.sigma_m"),
+        ("sigma-bool", {**ok_range, "sigma_m": True}, "rig.range.sigma_m"),
+        ("quantum-missing", {"sigma_m": 0.001, "axis": "ray"}, "rig.range.quantum_m"),
+        ("quantum-negative", {**ok_range, "quantum_m": -1}, "rig.range.quantum_m"),
+        ("axis-x", {**ok_range, "axis": "x"}, "rig.range.axis"),
+        ("axis-missing", {"sigma_m": 0.001, "quantum_m": 0.0}, "rig.range.axis"),
+        ("source-laser", {**ok_range, "source": "laser"}, "rig.range.source"),
+    ]
+    for name, value, culprit in bad_range:
+        @case(f"capture-json-rig.range-{name}")
+        def build(folder, assets, value=value, culprit=culprit):
+            cap = _capture(folder)
+            path = cap / "capture.json"
+            doc = json.loads(path.read_text())
+            doc["rig"]["range"] = value
+            path.write_text(json.dumps(doc))
+            return _estimate_argv(cap, folder), culprit
+
     for key in ("format", "width", "height", "camera", "camera.position"):
         @case(f"capture-json-missing-{key}")
         def build(folder, assets, key=key):

@@ -19,9 +19,11 @@ from typing import Any
 
 from ...errors import one_line
 from ...estimator import estimate
+from ...estimator.range_error import RangeModel
 from ...estimator.sanity import UnsupportedEstimate
 from ...physics.reflectance import LOBES
 from ..scoring.crlb import camera_noise_variance, specular_crlb
+from ..scoring.range_bound import range_crlb
 from ..scoring.metrics import INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
 
 
@@ -52,7 +54,10 @@ def noisy_capture(clean: Any, task: Mapping[str, Any]) -> Any:
 
 def _crlb(clean: Any, task: Mapping[str, Any]) -> dict[str, float]:
     """CRLB columns when they apply (one lamp, a lobe with a closed form, ideal mode, a stack, Gaussian-modelled
-    camera noise)."""
+    camera noise): the bound with the surface exact (:func:`~nearlight.evaluation.scoring.crlb.specular_crlb`),
+    or, where the task's range is noisy or quantised, with the surface's parameters fitted beside the lamp
+    (:func:`~nearlight.evaluation.scoring.range_bound.range_crlb`: NaN for a surface neither a plane nor a
+    sphere); the range's error along the ray, as the generator applies it, a quantum as its ``q/√12``."""
     bsdf = clean.truth["bsdf"]
     if not task["crlb"] or task["noise"] is None or clean.stack is None or bsdf.get("model") not in LOBES:
         return {}
@@ -60,7 +65,21 @@ def _crlb(clean: Any, task: Mapping[str, Any]) -> dict[str, float]:
         return {}
     if bsdf.get("polarization", "ideal") != "ideal":
         return {}
-    return specular_crlb(clean, noise_var=camera_noise_variance(clean.stack, noise=task["noise"]))
+    noise_var = camera_noise_variance(clean.stack, noise=task["noise"])
+    range_sigma = _range_sigma(task)
+    if range_sigma > 0:
+        bound = range_crlb(clean, noise_var=noise_var, range_sigma_m=range_sigma, axis="ray")
+        return {key: bound[key] for key in ("crlb_lamp_m", "crlb_sigma_rel")}
+    return specular_crlb(clean, noise_var=noise_var)
+
+
+def _range_sigma(task: Mapping[str, Any]) -> float:
+    """Standard deviation of the task's range error along the ray, metres: its Gaussian noise and the scene's
+    depth quantum (``nuisances.range.quantum_m``, a realism profile's included) as ``√(σ² + q²/12)``."""
+    from ...generator.nuisances import nuisances_of
+
+    quantum = nuisances_of(task.get("scene") or {})[1].range.quantum_m
+    return RangeModel(sigma_m=float(task["range_noise"] or 0.0), quantum_m=quantum).equivalent_sigma_m
 
 
 def blank_row() -> dict[str, Any]:

@@ -157,23 +157,13 @@ def specular_crlb(capture: Any, *, noise_var: np.ndarray, pixels: np.ndarray | N
     UserError
         A capture with several lamps: the bound is for one lamp's fit.
     """
-    truth = capture.truth
-    bsdf = truth["bsdf"]
-    lobe = LOBES[bsdf["model"]]
     mask = capture.surface_mask & np.all(np.isfinite(capture.N), axis=-1)
     if pixels is not None:
         mask &= pixels
     P, N = np.asarray(capture.P, float)[mask], np.asarray(capture.N, float)[mask]
     cam = np.asarray(capture.camera.position, float)
-    lamp = one_lamp_position(truth, where=capture_name(capture), what="the Cramér–Rao bound")
-    colour = np.broadcast_to(np.asarray(bsdf[lobe.colour_key], float), (3,)) * through_polarizer(
-        truth.get("lamp_intensity", 2.0))
-    rough = float(bsdf[lobe.roughness_key])
-    nv = np.broadcast_to(np.asarray(noise_var, float), capture.stack.shape)
-    # Per-image variances of one pixel differ only through shot noise; their mean is what the fit sees.
-    v = nv.mean(axis=0)[mask]
-    beta = stack_phase(capture.stack, capture.analyzer_angles_deg)[mask]
-    var_is = v * specular_variance_factor(capture.analyzer_angles_deg, beta)
+    bsdf, lobe, lamp, colour, rough = truth_parameters(capture)
+    var_is = specular_variance(capture, mask, noise_var)
 
     def model(theta: np.ndarray) -> np.ndarray:
         b = {"model": bsdf["model"], lobe.colour_key: theta[3:6], lobe.roughness_key: theta[6]}
@@ -182,7 +172,44 @@ def specular_crlb(capture: Any, *, noise_var: np.ndarray, pixels: np.ndarray | N
     theta = np.concatenate([lamp, colour, [rough]])
     scale = float(np.linalg.norm(lamp - P.mean(axis=0)))
     steps = np.concatenate([np.full(3, 1e-6 * scale), 1e-6 * np.maximum(colour, 1e-12), [1e-6 * rough]])
-    cov = crlb(model, theta, noise_var=var_is, steps=steps)
+    return bound_columns(crlb(model, theta, noise_var=var_is, steps=steps), rough)
+
+
+def truth_parameters(capture: Any) -> tuple[dict, Any, np.ndarray, np.ndarray, float]:
+    """The true ``θ`` of a one-lamp capture's bound: ``(bsdf, lobe, lamp, colour, roughness)``.
+
+    ``bsdf`` the truth's, ``lobe`` its :data:`~nearlight.physics.reflectance.LOBES` family,
+    ``lamp`` shape (3,) metres, ``colour`` shape (3,) (the lobe's colour times the lamp
+    intensity through the polarizer: what a fit with ``I_lamp = 1`` estimates), the roughness.
+
+    Raises
+    ------
+    UserError
+        A capture with several lamps: the bound is for one lamp's fit.
+    """
+    truth = capture.truth
+    bsdf = truth["bsdf"]
+    lobe = LOBES[bsdf["model"]]
+    lamp = one_lamp_position(truth, where=capture_name(capture), what="the Cramér–Rao bound")
+    colour = np.broadcast_to(np.asarray(bsdf[lobe.colour_key], float), (3,)) * through_polarizer(
+        truth.get("lamp_intensity", 2.0))
+    return bsdf, lobe, lamp, colour, float(bsdf[lobe.roughness_key])
+
+
+def specular_variance(capture: Any, mask: np.ndarray, noise_var: Any) -> np.ndarray:
+    """Variance of the specular radiance the analyzer stack gives each pixel of ``mask``, shape ``(n, 3)``.
+
+    ``noise_var`` as :func:`specular_crlb`'s. Per-image variances of one pixel
+    differ only through shot noise; their mean is what the fit sees.
+    """
+    nv = np.broadcast_to(np.asarray(noise_var, float), capture.stack.shape)
+    beta = stack_phase(capture.stack, capture.analyzer_angles_deg)[mask]
+    return nv.mean(axis=0)[mask] * specular_variance_factor(capture.analyzer_angles_deg, beta)
+
+
+def bound_columns(cov: np.ndarray, rough: float) -> dict[str, float]:
+    """``crlb_lamp_m`` (``sqrt(trace)`` of the lamp block, metres) and ``crlb_sigma_rel`` (the roughness's s.d.
+    over the roughness) of a bound ``cov`` whose ``θ`` starts ``(lamp x, y, z, colour r, g, b, roughness)``."""
     return {
         "crlb_lamp_m": float(np.sqrt(np.trace(cov[:3, :3]))),
         "crlb_sigma_rel": float(np.sqrt(cov[6, 6]) / rough),

@@ -28,13 +28,10 @@ errors are correlated over each terrace, so the bound is optimistic where
 terraces span many pixels (a surface nearly square to the axis the steps
 are taken along).
 
-Staged for issue 34 beside :mod:`~nearlight.evaluation.scoring.crlb` rather
-than in it: every committed report's code closure holds ``crlb.py``, and
-this bound joins it (and the reports' CRLB columns) with the change that
-makes the estimators use the fitted surfaces and regenerates the reports.
-Until then the lines that read the truth into ``θ`` and the stack into
-``Is``'s variance repeat :func:`~nearlight.evaluation.scoring.crlb.specular_crlb`'s;
-in ``crlb.py`` they become one function.
+The truth's ``θ``, the specular radiance's variance and the columns are
+:mod:`~nearlight.evaluation.scoring.crlb`'s (one home each); a sweep's CRLB
+columns are this bound wherever the task's range is noisy or quantised
+(:func:`nearlight.evaluation.engine.tasks.run_task`).
 """
 
 from __future__ import annotations
@@ -44,11 +41,9 @@ from typing import Any
 import numpy as np
 
 from ...estimator.geometry import capture_rays
-from ...physics.polarization import through_polarizer
-from ...physics.reflectance import LOBES, specular_radiance
 from ...estimator.fitting import central_jacobian
-from .crlb import specular_variance_factor, stack_phase
-from .metrics import capture_name, one_lamp_position
+from ...physics.reflectance import specular_radiance
+from .crlb import bound_columns, specular_variance, truth_parameters
 
 #: A family fits the exact ``P`` when its RMS residual is below this, metres (float32 ``P``: ~3e-8 m).
 EXACT = 1e-6
@@ -156,9 +151,7 @@ def range_crlb(capture: Any, *, noise_var: np.ndarray, range_sigma_m: float, axi
         raise ValueError(f"range_sigma_m must be > 0, got {range_sigma_m}")
     if axis not in ("ray", "z"):
         raise ValueError(f"axis must be 'ray' or 'z', got {axis!r}")
-    truth = capture.truth
-    bsdf = truth["bsdf"]
-    lobe = LOBES[bsdf["model"]]
+    bsdf, lobe, lamp, colour, rough = truth_parameters(capture)
     surface = capture.surface_mask
     cam = np.asarray(capture.camera.position, float)
     found = surface_family(np.asarray(capture.P, float)[surface], cam)
@@ -169,14 +162,7 @@ def range_crlb(capture: Any, *, noise_var: np.ndarray, range_sigma_m: float, axi
     counted = surface & (np.ones_like(surface) if pixels is None else pixels)
     rays = capture_rays(capture)
     axis_vec = np.asarray(capture.camera.to_world, float)[:3, 2] if axis == "z" else None
-    lamp = one_lamp_position(truth, where=capture_name(capture), what="the Cramér–Rao bound")
-    colour = np.broadcast_to(np.asarray(bsdf[lobe.colour_key], float), (3,)) * through_polarizer(
-        truth.get("lamp_intensity", 2.0))
-    rough = float(bsdf[lobe.roughness_key])
-    nv = np.broadcast_to(np.asarray(noise_var, float), capture.stack.shape)
-    v = nv.mean(axis=0)[counted]
-    beta = stack_phase(capture.stack, capture.analyzer_angles_deg)[counted]
-    var_is = (v * specular_variance_factor(capture.analyzer_angles_deg, beta)).ravel()
+    var_is = specular_variance(capture, counted, noise_var).ravel()
     r_counted, r_all = rays[counted], rays[surface]
     to_depth = 1.0 if axis_vec is None else r_all @ axis_vec  # depth along z = distance · cos
 
@@ -194,9 +180,4 @@ def range_crlb(capture: Any, *, noise_var: np.ndarray, range_sigma_m: float, axi
     s_steps = 1e-7 * (np.maximum(np.abs(s0), 1e-3) if family == "sphere" else np.full(3, np.linalg.norm(s0)))
     steps = np.concatenate([np.full(3, 1e-6 * scale), 1e-6 * np.maximum(colour, 1e-12), [1e-6 * rough], s_steps])
     noise = np.concatenate([var_is, np.full(int(surface.sum()), float(range_sigma_m) ** 2)])
-    cov = _equilibrated_bound(model, theta, noise, steps)
-    return {
-        "crlb_lamp_m": float(np.sqrt(np.trace(cov[:3, :3]))),
-        "crlb_sigma_rel": float(np.sqrt(cov[6, 6]) / rough),
-        "family": family,
-    }
+    return {**bound_columns(_equilibrated_bound(model, theta, noise, steps), rough), "family": family}

@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from nearlight.capture import FORMAT, FORMAT_V1, Camera, Capture, LampFilter, Rig, read_capture, write_capture
+from nearlight.capture import (FORMAT, FORMAT_V1, Camera, Capture, LampFilter, RangeSensor, Rig, read_capture,
+                               write_capture)
 from nearlight.errors import UserError
 
 H, W = 6, 8
@@ -56,6 +57,29 @@ def test_the_lamps_filter_round_trips(tmp_path, rng):
     doc = json.loads((folder / "capture.json").read_text())
     assert doc["rig"]["lamp_filter"] == {"axis": [1.0, 0.0, 0.0], "aim": [0.0, 0.05, 0.0]}
     assert read_capture(folder).rig == rig
+
+
+def test_the_range_sensor_round_trips(tmp_path, rng):
+    rig = Rig(range=RangeSensor(sigma_m=0.0002, quantum_m=0.001, axis="z", source="depth-map"))
+    folder = write_capture(_capture(rng, rig=rig), tmp_path / "cap")
+    doc = json.loads((folder / "capture.json").read_text())
+    assert doc["rig"]["range"] == {"sigma_m": 0.0002, "quantum_m": 0.001, "axis": "z", "source": "depth-map"}
+    assert read_capture(folder).rig == rig
+    assert "range" not in read_capture(folder).rig.other
+
+
+def test_an_unstated_range_sensor_is_none(tmp_path, rng):
+    folder = write_capture(_capture(rng), tmp_path / "cap")
+    doc = json.loads((folder / "capture.json").read_text())
+    assert "range" not in doc["rig"]
+    assert read_capture(folder).rig.range is None
+    doc["rig"]["range"] = None
+    (folder / "capture.json").write_text(json.dumps(doc))
+    assert read_capture(folder).rig.range is None
+    # source is optional (unknown)
+    doc["rig"]["range"] = {"sigma_m": 0, "quantum_m": 0.0005, "axis": "ray"}
+    (folder / "capture.json").write_text(json.dumps(doc))
+    assert read_capture(folder).rig.range == RangeSensor(quantum_m=0.0005, axis="ray", source="unknown")
 
 
 def test_v1_capture_keeps_its_meaning(tmp_path, rng):
@@ -113,6 +137,16 @@ def test_holes_in_P_are_read_as_no_range(tmp_path, rng):
         ("rig.lamp_filter", {"axis": [1, 0], "aim": [0, 0, 0]}, r"rig\.lamp_filter\.axis: expected 3 numbers"),
         ("rig.lamp_filter", {"axis": [0, 0, 0], "aim": [0, 0, 0]}, r"rig\.lamp_filter\.axis: expected a nonzero"),
         ("rig.lamp_filter", {"axis": [1, 0, 0], "aim": "object"}, r"rig\.lamp_filter\.aim: expected 3 numbers"),
+        ("rig.range", "laser", r"rig\.range: expected an object"),
+        ("rig.range", {"sigma_m": 0.001, "quantum_m": 0, "axis": "ray", "gain": 2},
+         r"rig\.range\.gain: unknown key \(expected sigma_m"),
+        ("rig.range", {"sigma_m": -0.001, "quantum_m": 0, "axis": "ray"},
+         r"rig\.range\.sigma_m: expected a number >= 0"),
+        ("rig.range", {"sigma_m": "1mm", "quantum_m": 0, "axis": "ray"}, r"rig\.range\.sigma_m: expected a number"),
+        ("rig.range", {"sigma_m": 0.001, "axis": "ray"}, r"rig\.range\.quantum_m: missing"),
+        ("rig.range", {"sigma_m": 0.001, "quantum_m": 0, "axis": "x"}, r'rig\.range\.axis: expected "ray" or "z"'),
+        ("rig.range", {"sigma_m": 0.001, "quantum_m": 0, "axis": "ray", "source": "laser"},
+         r"rig\.range\.source: expected one of depth-map"),
     ],
 )
 def test_bad_v2_key_is_one_line_naming_file_and_key(tmp_path, rng, key, value, message):

@@ -7,7 +7,6 @@ import pytest
 
 from nearlight.errors import UserError
 from nearlight.estimator import separate
-from nearlight.estimator.normals import normals_from_positions
 from nearlight.generator.analytic import analytic_capture
 
 FOUR = (0.0, 45.0, 90.0, 135.0)
@@ -94,28 +93,12 @@ def test_separation_needs_enough_angles():
         separate(stack, np.array([0.0, 90.0]), method="nope")
 
 
-def test_normals_from_positions_board_exact_sphere_close():
-    board = analytic_capture(width=64, height=48)
-    N = normals_from_positions(board.P, board.camera.position)
-    m = board.surface_mask
-    # A plane: every 3x3 window is coplanar, so the fit is exact up to float32 positions.
-    np.testing.assert_allclose(N[m], board.N[m], atol=1e-4)
-    sphere = analytic_capture(shape="sphere", width=96, height=72)
-    N = normals_from_positions(sphere.P, sphere.camera.position)
-    m = sphere.surface_mask
-    err = np.degrees(np.arccos(np.clip(np.sum(N[m] * sphere.N[m], axis=-1), -1, 1)))
-    # Interior pixels: a plane through a 3x3 patch of a sphere is tilted by O(footprint²/R²): < 0.5°.
-    # Silhouette pixels see few neighbours at grazing angles and can be far off.
-    assert np.median(err) < 0.5
-
-
-def test_range_noise_is_measured_and_widens_the_normal_window():
+def test_range_noise_is_measured_from_fourth_differences():
     # the fourth differences of the range measure Gaussian range noise (0.2 mm on a
     # 320×240 board: ~70k runs, so the robust estimate's relative standard error is
     # well under 1 %; 5 % allowed) and are blind to a noise-free sphere's curvature
-    # (below 1e-6 m); the window then grows until the predicted tilt is ≤ 1 mrad, and
-    # the normals beat the 3 × 3 planes' (measured medians 0.06° against 2.5°)
-    from nearlight.estimator.normals import choose_window, range_noise
+    # (below 1e-6 m)
+    from nearlight.estimator.range_error import range_noise
     from nearlight.generator.noise import add_range_noise
 
     board = analytic_capture(width=320, height=240)
@@ -123,15 +106,3 @@ def test_range_noise_is_measured_and_widens_the_normal_window():
     assert range_noise(noisy.P, noisy.camera.position) == pytest.approx(2e-4, rel=0.05)
     sphere = analytic_capture(width=320, height=240, shape="sphere")
     assert range_noise(sphere.P, sphere.camera.position) < 1e-6
-    assert choose_window(sphere.P, sphere.camera.position)[0] == 3
-    window = choose_window(noisy.P, noisy.camera.position)[0]
-    assert 15 <= window <= 31
-    m = board.surface_mask
-
-    def median_angle(N):
-        ok = m & np.all(np.isfinite(N), axis=-1)
-        return np.degrees(np.median(np.arccos(np.clip(np.sum(N[ok] * board.N[ok], axis=-1), -1, 1))))
-
-    adaptive = median_angle(normals_from_positions(noisy.P, noisy.camera.position))
-    plane3 = median_angle(normals_from_positions(noisy.P, noisy.camera.position, window=3))
-    assert adaptive < 0.2 and plane3 > 1.0

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nearlight.capture import Rig, read_capture
+from nearlight.capture import RangeSensor, Rig, read_capture
 from nearlight.generator import add_camera_noise, add_range_noise, load_scene, render_clean
 from nearlight.generator.analytic import analytic_capture
 from nearlight.generator.noise import noise_rngs
@@ -60,7 +60,7 @@ def test_every_nuisance_off_is_exactly_camera_then_range_noise(nuisances):
     before = add_range_noise(add_camera_noise(clean, noise=NOISE, seed=5), sigma_m=0.001, seed=5)
     after = through_rig(clean, nuisances=nuisances, noise=NOISE, range_noise=0.001, seed=5)
     _same(after, before)
-    assert after.rig == Rig()
+    assert after.rig == before.rig == Rig(range=RangeSensor(sigma_m=0.001, axis="ray", source="renderer"))
 
 
 def test_off_values_written_explicitly_are_the_scene_without_them():
@@ -411,6 +411,22 @@ def test_depth_quantisation_keeps_points_on_their_rays():
     np.testing.assert_allclose(d1 / q, np.round(d1 / q), atol=2e-4)  # float32 positions
     assert np.abs(d1 - d0).max() <= q / 2 + 1e-6
     np.testing.assert_allclose(ray1 / d1[:, None], ray0 / d0[:, None], atol=1e-6)
+
+
+def test_range_noise_and_quantisation_are_stated_in_rig_range():
+    clean = analytic_capture(width=32, height=24)
+    cap = through_rig(clean, nuisances=_nz(range={"quantum_m": 0.002}), range_noise=0.001, seed=3)
+    assert cap.rig.range == RangeSensor(sigma_m=0.001, quantum_m=0.002, axis="ray", source="renderer")
+    only_q = through_rig(clean, nuisances=_nz(range={"quantum_m": 0.002}))
+    assert only_q.rig.range == RangeSensor(sigma_m=0.0, quantum_m=0.002, axis="ray", source="renderer")
+    # neither: the rig states nothing (nor for holes or a shift alone: no error of the range itself)
+    assert through_rig(clean, nuisances=_nz(range={"shift_px": [0.5, 0.0]})).rig.range is None
+    assert through_rig(clean).rig.range is None
+    # add_range_noise on its own (the sweeps) states its sigma, keeping a stated quantisation
+    assert add_range_noise(clean, sigma_m=0.0005, seed=1).rig.range == RangeSensor(sigma_m=0.0005, source="renderer")
+    again = add_range_noise(only_q, sigma_m=0.0005, seed=1)
+    assert again.rig.range == RangeSensor(sigma_m=0.0005, quantum_m=0.002, axis="ray", source="renderer")
+    assert add_range_noise(clean, sigma_m=0.0, seed=1).rig.range is None
 
 
 # --------------------------------------------------------------------------- calibration

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import yaml
 
-from nearlight.capture import read_capture
+from nearlight.capture import RangeSensor, read_capture
 from nearlight.generator.analytic import analytic_capture
 from nearlight.rig.importer import CV_TO_MITSUBA, import_rig
 
@@ -123,6 +123,30 @@ def test_a_separate_depth_sensor_through_its_extrinsics(tmp_path):
     err = np.linalg.norm(imp.P - cap.P, axis=-1)
     assert np.all(err[both] <= bound[both])
     assert np.median(err[both] / bound[both]) > 0.2  # the resampling is really there
+    # a rotated depth sensor's z is not the camera's: its steps are not stated
+    assert imp.rig.range is None
+
+
+@pytest.mark.parametrize("scale", [None, 1e-4])
+def test_an_integer_depth_map_states_its_quantisation_along_z(tmp_path, scale):
+    cap = analytic_capture(width=W, height=H)
+    K, pose = camera_calibration(cap)
+    unit = 1e-3 if scale is None else scale  # 16-bit PNG: millimetres unless depth.scale
+    cv2.imwrite(str(tmp_path / "depth.png"), np.rint(exact_depth(cap, pose) / unit).astype(np.uint16))
+    cv2.imwrite(str(tmp_path / "f.png"), np.full((H, W), 100, np.uint16))
+    depth = {"file": "depth.png", "intrinsics": K, "to_camera": [[1, 0, 0, 0.01], [0, 1, 0, 0], [0, 0, 1, 0],
+                                                                  [0, 0, 0, 1]]}  # fmt: skip
+    if scale is not None:
+        depth["scale"] = scale
+    rig = write_rig(tmp_path, {
+        "format": "nearlight-rig/1",
+        "camera": {"width": W, "height": H, "intrinsics": K, "pose": pose.tolist()},
+        "polarization": {"mosaic": "mono", "shots": [{"files": ["f.png"]}], "white_level": 4095},
+        "depth": depth,
+    })  # fmt: skip
+    import_rig(rig, tmp_path / "c")
+    imp = read_capture(tmp_path / "c")
+    assert imp.rig.range == RangeSensor(sigma_m=0.0, quantum_m=unit, axis="z", source="depth-map")
 
 
 def _distort(x, y, k1, k2, p1, p2, k3):

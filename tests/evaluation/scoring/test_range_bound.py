@@ -59,3 +59,19 @@ def test_bad_arguments_are_refused():
         range_crlb(clean, noise_var=1e-6, range_sigma_m=0.0)
     with pytest.raises(ValueError, match="axis"):
         range_crlb(clean, noise_var=1e-6, range_sigma_m=1e-4, axis="x")
+
+
+def test_a_sweep_rows_bound_is_the_range_aware_one_where_its_range_is_noisy(clean):
+    """The CRLB columns of a sweep's row (engine.tasks): the exact-surface bound without range error, this one with
+    the task's Gaussian range noise and the scene's quantum combined as √(σ² + q²/12) along the ray."""
+    from nearlight.evaluation.engine.tasks import _crlb
+
+    nv = camera_noise_variance(clean.stack, noise=LOW)
+    task = {"crlb": True, "noise": LOW, "range_noise": 0.0, "scene": {}}
+    assert _crlb(clean, task) == specular_crlb(clean, noise_var=nv)
+    noisy = _crlb(clean, {**task, "range_noise": 2e-4})
+    assert noisy["crlb_lamp_m"] == range_crlb(clean, noise_var=nv, range_sigma_m=2e-4)["crlb_lamp_m"]
+    both = _crlb(clean, {**task, "range_noise": 2e-4, "scene": {"nuisances": {"range": {"quantum_m": 1e-3}}}})
+    sigma = np.hypot(2e-4, 1e-3 / np.sqrt(12))
+    assert both["crlb_lamp_m"] == range_crlb(clean, noise_var=nv, range_sigma_m=sigma)["crlb_lamp_m"]
+    assert both["crlb_lamp_m"] > noisy["crlb_lamp_m"] > specular_crlb(clean, noise_var=nv)["crlb_lamp_m"]
