@@ -144,7 +144,10 @@ def _rig(realism: str) -> str:
             "cos-power beam behind a leaky polarizer, an analyzer with finite extinction and angle errors, "
             "vignetting, lamp flicker, range holes on the highlight, misregistered and quantised range, a "
             "calibration error of the camera pose; so no method sees exactly its own model, as on the paper's "
-            "real captures. ")
+            "real captures. The range image has no normals: every method's points and normals are the surface "
+            "nearlight fits to the range, its error as the capture's `rig.range` states it (docs/physics.md, "
+            "\"Range sensor error and the fitted surface\"; the paper had a range finder too, and every method "
+            "gets the same geometry). ")
 
 
 def distance_section(doc: dict[str, Any]) -> str:
