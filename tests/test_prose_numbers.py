@@ -77,6 +77,11 @@ RANGE_NOISE = {"method": "full", "metric": "lamp_position_error_pct", "input": "
 QUOTES = [
     Quote("README.md", "in % of the lamp's distance (total index {} ± {})",
           "global/sobol/gsa/indices.csv", (Cell(RANGE_NOISE, "ST"), Cell(RANGE_NOISE, "ST_conf")), "{:.2f}"),
+    Quote("README.md", "roughness ({} ± {}) and viewing angle ({} ± {}) lead",
+          "global/sobol/gsa/indices.csv", (Cell({**RANGE_NOISE, "input": "roughness"}, "ST"),
+                                           Cell({**RANGE_NOISE, "input": "roughness"}, "ST_conf"),
+                                           Cell({**RANGE_NOISE, "input": "viewing_angle"}, "ST"),
+                                           Cell({**RANGE_NOISE, "input": "viewing_angle"}, "ST_conf")), "{:.2f}"),
     Quote("README.md", "clean and noisy, ideal and `bench` rig; {} captures)",
           "scores/core-v1/full/scorecard.json", (("cases",),)),
     Quote("docs/global-sensitivity.md", "`screening`: Morris, r = {} trajectories",
