@@ -133,3 +133,50 @@ def test_keep_reference_script_runs(tmp_path):
     done = subprocess.run([sys.executable, str(ROOT / "scripts" / "keep_reference.py"), "reproduction", str(tmp_path), "x",
                            "--tables", "board", "--note", "n"], capture_output=True, text=True)
     assert done.returncode == 2 and done.stderr.count("\n") == 1 and "cannot read" in done.stderr
+
+
+def _run(folder, experiments, *, cpu="AMD EPYC", version="0.3.0+gaaaaaaa"):
+    folder.mkdir(parents=True)
+    doc = {"code_version": version, "profile": {"name": "full"}, "experiments": experiments,
+           "environment": {"cpu": cpu, "cpu_flags": ["avx2"], "jit_target": "x86-64-v3"}}
+    (folder / "paper_reproduction.json").write_text(json.dumps(doc))
+    return folder
+
+
+def test_a_change_that_left_a_table_as_it_was_carries_it_and_one_that_moved_it_does_not(tmp_path):
+    """refs.carry: a retired table is carried only when this machine's runs before and after agree on it to the
+    last bit (run times and code versions aside) and the reference recorded the fingerprint of the code before."""
+    now = refs.fingerprints(quick=False)
+    before = {"board": "old-board", "bookend": "old-bookend", "first_stage": "older"}
+    kept = tmp_path / "refs" / "elsewhere"
+    kept.mkdir(parents=True)
+    (kept / "paper_reproduction.json").write_text("{}")
+    record = {"profile": "full", "tables": dict(before), "note": "test"}
+    (kept / refs.RECORD).write_text(json.dumps(record))
+    table = {"rows": [{"lamp_position_error_pct": 1.5, "runtime_s": 0.3}], "code_versions": ["a"]}
+    moved = {"rows": [{"lamp_position_error_pct": 1.6, "runtime_s": 0.3}]}
+    old = _run(tmp_path / "old", {"board": table, "bookend": table, "first_stage": table})
+    new = _run(tmp_path / "new", {"board": {**table, "rows": [{"lamp_position_error_pct": 1.5, "runtime_s": 9.0}],
+                                            "code_versions": ["b"]},
+                                  "bookend": moved, "first_stage": table}, version="0.3.0+gbbbbbbb")
+    fp = {"full": {"board": "old-board", "bookend": "old-bookend", "first_stage": "old-first-stage"}}
+    assert refs.carry(old, new, fp, note="test change", folder=tmp_path / "refs") == ["elsewhere/board"]
+    after = json.loads((kept / refs.RECORD).read_text())
+    assert after["tables"] == {"board": now["board"], "bookend": "old-bookend", "first_stage": "older"}
+    assert after["carried"] == [{"table": "board", "from": "old-board", "to": now["board"], "before": "0.3.0+gaaaaaaa",
+                                 "after": "0.3.0+gbbbbbbb", "note": "test change"}]
+    (_, _, live, retired), = refs.references("full", folder=tmp_path / "refs")
+    assert live == ["board"] and retired == ["bookend", "first_stage"]
+    # two machines' runs are no evidence of one change
+    other = _run(tmp_path / "xeon", {"board": table}, cpu="Intel Xeon")
+    with pytest.raises(refs.UserError, match="not one machine's runs \\(cpu differ\\)"):
+        refs.carry(old, other, fp, note="x", folder=tmp_path / "refs")
+
+
+def test_carry_refuses_a_folder_without_a_reproduction_in_one_line(tmp_path):
+    fp = tmp_path / "fp.json"
+    fp.write_text(json.dumps({"full": {}}))
+    run = subprocess.run([sys.executable, str(ROOT / "scripts" / "keep_reference.py"), "carry", str(tmp_path / "none"),
+                          str(tmp_path / "none2"), str(fp), "--note", "x"], capture_output=True, text=True)
+    assert run.returncode == 2
+    assert run.stderr.count("\n") == 1 and "cannot read a reproduction document" in run.stderr
