@@ -90,8 +90,8 @@ def main() -> None:
         for label, error in (ROWS[0], ROWS[2], ROWS[5]):
             cap = perturb_range(clean, seed=0, **error) if error else clean.replace(N=None)
             t = []
-            for fn in (lambda: full_estimate(clean, lobe="torrance-sparrow"),
-                       lambda: full_estimate(cap, lobe="torrance-sparrow"), lambda: surface_geometry(cap)):
+            for fn in (lambda: full_estimate(clean, lobe="torrance_sparrow"),
+                       lambda: full_estimate(cap, lobe="torrance_sparrow"), lambda: surface_geometry(cap)):
                 best = np.inf
                 for _ in range(2):
                     t0 = time.perf_counter()
