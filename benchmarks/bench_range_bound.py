@@ -35,6 +35,7 @@ import itertools
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
+from scipy.stats import binomtest, chi2
 from tqdm import tqdm
 
 NOISE = {  # sweeps/sensitivity.yaml's camera noise levels
@@ -63,7 +64,8 @@ def _clean(shape: str):
 
 
 def _one(job: tuple[str, str, str, int, tuple[str, ...]]) -> dict[str, list[float]]:
-    """Lamp position error vectors (m) of each method on one seed's capture; NaN where it refused."""
+    """Per method on one seed's capture: the lamp position error vector (m) and its squared Mahalanobis distance
+    under the method's own covariance (NaN without one); all NaN where it refused."""
     from nearlight.errors import UserError
     from nearlight.estimator.api import METHODS as BUILT_IN
     from nearlight.generator.analytic import DEFAULT_LAMP_POSITION
@@ -80,9 +82,12 @@ def _one(job: tuple[str, str, str, int, tuple[str, ...]]) -> dict[str, list[floa
         name, options = METHODS[label]
         try:
             est = BUILT_IN[name](cap, **options)
-            out[label] = list(np.asarray(est.lamp_position, float) - DEFAULT_LAMP_POSITION)
+            d = np.asarray(est.lamp_position, float) - DEFAULT_LAMP_POSITION
+            cov = None if est.covariance is None else np.asarray(est.covariance, float)[:3, :3]
+            m2 = float(d @ np.linalg.solve(cov, d)) if cov is not None and np.all(np.isfinite(cov)) else np.nan
+            out[label] = [*d, m2]
         except UserError:
-            out[label] = [np.nan] * 3
+            out[label] = [np.nan] * 4
     return out
 
 
@@ -104,31 +109,41 @@ def _bound(shape: str, noise: str, rng: str) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=100)
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
     ap.add_argument("--shapes", nargs="+", default=["board", "sphere"], choices=["board", "sphere"])
     args = ap.parse_args()
     rows = list(itertools.product(args.shapes, NOISE, RANGE))
-    jobs = [(s, n, r, seed, tuple(args.methods)) for s, n, r in rows for seed in range(args.seeds)]
+    jobs = [(s, n, r, seed, tuple(args.methods)) for s, n, r in rows for seed in range(args.first_seed, args.first_seed + args.seeds)]
     with ProcessPoolExecutor(args.workers) as pool:
         results = list(tqdm(pool.map(_one, jobs, chunksize=4), total=len(jobs), desc="captures", unit="capture"))
     rng = np.random.default_rng(0)
-    print(f"\n{args.seeds} seeds per row, {SIZE[0]}x{SIZE[1]}; RMSE and bound in mm; ratio = RMSE / bound, "
-          "its one-sided 95 % bootstrap upper bound\n")
-    print("| object | camera noise | range error | method | RMSE | bound | ratio | upper | failed |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print(f"\n{args.seeds} seeds per row (from {args.first_seed}), {SIZE[0]}x{SIZE[1]}; RMSE and bound in mm; "
+          "ratio = RMSE / bound, its one-sided 95 % bootstrap upper bound; the share of truths inside the method's "
+          "95 % ellipsoid (its own covariance, the lamp block) with its exact binomial 95 % interval\n")
+    print("| object | camera noise | range error | method | RMSE | bound | ratio | upper | coverage | failed |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for k, (shape, noise, rng_label) in enumerate(rows):
         bound = _bound(shape, noise, rng_label)
         part = results[k * args.seeds:(k + 1) * args.seeds]
         for label in args.methods:
-            err = np.array([r[label] for r in part])
+            res = np.array([r[label] for r in part])
+            err, m2 = res[:, :3], res[:, 3]
             ok = np.all(np.isfinite(err), axis=1)
+            has = ok & np.isfinite(m2)
+            if has.any():
+                inside = int(np.sum(m2[has] <= chi2.ppf(0.95, 3)))
+                lo, hi = binomtest(inside, int(has.sum())).proportion_ci(0.95)
+                coverage = f"{inside / has.sum():.3f} [{lo:.3f}, {hi:.3f}]"
+            else:
+                coverage = "no covariance"
             sq = np.sum(err[ok] ** 2, axis=1)
             rmse = float(np.sqrt(sq.mean())) if ok.any() else np.nan
             boot = np.sqrt(sq[rng.integers(0, len(sq), (2000, len(sq)))].mean(axis=1)) if ok.any() else [np.nan]
             upper = float(np.percentile(boot, 95))
             print(f"| {shape} | {noise} | {rng_label} | {label} | {rmse * 1e3:.3g} | {bound * 1e3:.3g} | "
-                  f"{rmse / bound:.2f} | {upper / bound:.2f} | {int((~ok).sum())} |", flush=True)
+                  f"{rmse / bound:.2f} | {upper / bound:.2f} | {coverage} | {int((~ok).sum())} |", flush=True)
 
 
 if __name__ == "__main__":
