@@ -70,9 +70,9 @@ def _surface(shape: str, P: np.ndarray, cam: np.ndarray) -> np.ndarray:
 
 def _on_rays(shape: str, g: np.ndarray, cam: np.ndarray, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Distance along each unit ray to the surface ``g`` and its normal there (towards the camera)."""
-    from nearlight.evaluation.scoring.range_bound import _intersect
+    from nearlight.estimator.whole_surface import on_rays
 
-    return _intersect("plane" if shape == "board" else "sphere", g, cam, rays)
+    return on_rays("plane" if shape == "board" else "sphere", g, cam, rays)
 
 
 def _one(job):

@@ -112,6 +112,8 @@ def _robust_fit(
     max_nfev: int = 200,
     start_is_fit: bool = False,
     tol: float = 1e-12,
+    prior_rows: int = 0,
+    prior_var: float = 1.0,
 ) -> dict:
     """Robust nonlinear least squares with a sandwich covariance.
 
@@ -151,6 +153,15 @@ def _robust_fit(
         them): one pass, ``f_scale = 3 × 1.4826 · MAD`` of the residuals at ``x0``.
     tol : float
         ``least_squares``' ``xtol``, ``ftol`` and ``gtol``.
+    prior_rows : int
+        The last this many residuals are a Gaussian prior's whitened terms
+        (``full``'s joint fit: the range's information about the surface), not
+        observations: in the sandwich's ``B`` each counts with its expected
+        square ``prior_var`` instead of its own (one draw of a few terms is no
+        estimate of their variance: a prior term that happens to be small
+        would shrink the covariance).
+    prior_var : float
+        Expected square of each prior term (the observations' residual variance).
 
     Returns
     -------
@@ -191,6 +202,8 @@ def _robust_fit(
         z = (rho / s) ** 2
         d1, d2 = _LOSS_DERIVATIVES[loss](z)
         psi, dpsi = d1 * rho, d1 + 2.0 * z * d2
+    if prior_rows:
+        psi = np.concatenate([psi[:-prior_rows], np.full(prior_rows, np.sqrt(prior_var))])
     A = J.T @ (dpsi[:, None] * J)
     B = J.T @ ((psi**2)[:, None] * J)
     try:

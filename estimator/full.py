@@ -33,6 +33,7 @@ from ..errors import UserError
 from ..physics.reflectance import LOBES, peak_shape, roughness_for_ts_sigma, ts_sigma
 from .first_stage import ray_stage, stage_one
 from .fitting import LOSSES
+from .joint_surface import joint_fit
 from .lobes import FAMILIES
 from .observation import THRESHOLD, Observation, observation_of
 from .options import Choice, Count, CountOrZero, Positive, forwards
@@ -72,6 +73,15 @@ LampCount = Annotated[int, Field(ge=1, le=MAX_FITTED_LAMPS)] | Literal["auto"]
 #: Pixel-weight models of ``full``'s ``noise`` option.
 NOISE_MODELS = ("none", "auto")
 
+#: ``full``'s ``surface`` option: the surface refined with the lamp or taken as given.
+SURFACE_FITS = ("auto", "joint", "fixed")
+
+#: ``surface="auto"`` refines the surface with the lamp when the range's error (stated in ``rig.range``
+#: or measured) is above this, metres: far below any range sensor's (≥ 5e-5 m in every rig and study
+#: here) and above float32 rounding of ``P`` (measured on exact analytic captures: 1.5e-9 m on the
+#: board, 7.8e-8 m on the sphere), so an exact range costs nothing.
+JOINT_MIN_RANGE_M = 1e-6
+
 #: About how many pixels the multi-start's short fits use (every k-th of the fitted pixels).
 TRIAL_PIXELS = 500
 
@@ -98,6 +108,21 @@ def _specular_evidence(chi2_none: float, chi2_fit: float, s2: float) -> float:
     return float("inf") if gain > 0 else 0.0
 
 
+def _surface_fit(obs: Observation, surface: str) -> tuple[bool, str]:
+    """Whether ``full`` refines the surface with the lamp (``surface`` its option), and why, in a few words."""
+    geometry = obs.geometry
+    if surface == "fixed":
+        return False, "surface=fixed"
+    if geometry.parameters is None:
+        kind = geometry.summary.get("surface")
+        return False, ("the capture's own normals" if kind is None
+                       else f"the range fitted a {kind} surface, whose parameters are not refined")
+    sigma = geometry.range.equivalent_sigma_m
+    if surface == "auto" and not sigma > JOINT_MIN_RANGE_M:
+        return False, f"the range's error {sigma:.3g} m is below {JOINT_MIN_RANGE_M:g} m"
+    return True, f"one {geometry.parameters.kind} fitted to a range with error {sigma:.3g} m"
+
+
 def no_specular_warning(evidence: float) -> str | None:
     """The warning of a fit whose lobe explains the pixels hardly better than no specular (else None)."""
     if evidence >= SPECULAR_EVIDENCE:
@@ -119,6 +144,7 @@ def full_estimate(
     n_starts: CountOrZero = 6,
     separation: Choice(SEPARATION_METHODS) = "projected",
     lamps: LampCount = 1,
+    surface: Choice(SURFACE_FITS) = "auto",
     **init_options,
 ) -> Estimate:
     """Method ``full``: ``paper-init``, then a weighted robust fit of lamp position, Ks and roughness.
@@ -221,6 +247,17 @@ def full_estimate(
         tried until two reach the same lowest cost
         (:func:`~nearlight.estimator.pointlamp.best_short_fit`; how many ran:
         ``stages["full"]["n_short_fits"]``).
+    surface : {"auto", "joint", "fixed"}
+        Whether a surface fitted to a noisy range is refined with the lamp
+        (:mod:`~nearlight.estimator.joint_surface`: one plane or one sphere, its
+        parameters fitted with the lamp, colour and roughness against the image
+        and the range together; the covariance then holds the geometry's
+        share): ``auto`` (the default) when the range's error is above
+        :data:`JOINT_MIN_RANGE_M`, ``joint`` whenever the surface is a plane or a
+        sphere, ``fixed`` never. Which ran, and why: ``stages["full"]["surface_fit"]``
+        (``"joint"`` or ``"fixed"``) and ``surface_fit_reason``; the refined
+        surface in ``surface_parameters``. With several lamps the surface is
+        taken as given.
     lamps : int or "auto"
         Number of point lamps fitted: 1 (the default: the fit above), K ≤
         :data:`~nearlight.estimator.several.MAX_FITTED_LAMPS`, or ``"auto"`` (the count
@@ -249,7 +286,8 @@ def full_estimate(
     if loss not in LOSSES:
         raise UserError(f"option loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
     one, obs = one_lamp_fit(capture, lobe=lobe, noise=noise, loss=loss, f_scale=f_scale, max_pixels=max_pixels,
-                            saturation=saturation, n_starts=n_starts, separation=separation, **init_options)
+                            saturation=saturation, n_starts=n_starts, separation=separation, surface=surface,
+                            **init_options)
     if lamps == 1:
         return one
     return several_estimate(capture, one, obs, lamps=lamps, lobe=lobe, noise=noise, loss=loss, f_scale=f_scale,
@@ -257,7 +295,7 @@ def full_estimate(
 
 
 def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale: float | None, max_pixels: int,
-                 saturation: float | None, n_starts: int, separation: str,
+                 saturation: float | None, n_starts: int, separation: str, surface: str = "fixed",
                  **init_options) -> tuple[Estimate, Observation]:
     """:func:`full_estimate` with one lamp, and the observation it fitted (options as its, checked there).
 
@@ -307,6 +345,15 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
     s2_all = fit["chi2"] / max(3 * len(model.P) - 7, 1)
     refit = {k: (v["chi2"] - fit["chi2"]) / s2_all for k, v in fits.items()}
     evidence_specular = _specular_evidence(_chi2_none(model), fit["chi2"], s2_all)
+    joint, why = _surface_fit(obs, surface)
+    refined = None
+    if joint:
+        fit = joint_fit(model.with_lobe(chosen), obs.geometry.parameters, fit["x"], obs.scale, loss=loss,
+                        f_scale=f_scale, floor=floor, scale=float(np.sqrt(s2_all)))
+        g = fit["x"][7:]
+        refined = {"kind": obs.geometry.parameters.kind, "g": g, "covariance": fit["cov"][7:, 7:],
+                   "range_fit_g": obs.geometry.parameters.g, "range_chi2": fit["prior_chi2"]}
+        fit = {**fit, "x": fit["x"][:7], "cov": fit["cov"][:7, :7]}
     x, cov7 = fit["x"], fit["cov"]
     per_roughness = ts_sigma(chosen, 1.0)  # σ is linear in the family's roughness
     idx = [0, 1, 2, 6]
@@ -324,6 +371,7 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
         "noise": None if camera is None else camera._asdict(),
         "loss": loss, "n_pixels": int(use.sum()), "n_dark_measured": int(fit_px.measured.sum()),
         "n_starts": len(starts), "n_short_fits": tried,
+        "surface_fit": "joint" if joint else "fixed", "surface_fit_reason": why, "surface_parameters": refined,
     }
     return Estimate(
         method="full",

@@ -24,7 +24,7 @@ from ..physics.camera import camera_rays, project
 from ..physics.reflectance import channel_sum, every_channel, normalize
 from .pinhole import optical_axis, pinhole_matrix
 from .range_error import RangeModel, measured_range
-from .surfaces import fit_surface
+from .surfaces import SurfaceParameters, fit_surface
 
 #: How far (median over surface pixels) the rays from the camera through ``P``
 #: may miss their pixels before a capture is refused as inconsistent with its
@@ -358,6 +358,8 @@ class SurfaceGeometry:
     surface: np.ndarray
     filled: np.ndarray
     summary: dict
+    parameters: SurfaceParameters | None = None
+    range: RangeModel | None = None
 
 
 def range_model(capture: Capture, P: np.ndarray, valid: np.ndarray, rays: np.ndarray) -> RangeModel:
@@ -399,6 +401,7 @@ def surface_geometry(capture: Capture) -> SurfaceGeometry:
         filled = every_channel(np.isfinite(P_fill))
         P[filled] = P_fill[filled]
     summary: dict = {"normals": "capture"}
+    parameters, model = None, None
     if not fit_normals:
         N = normalize(np.asarray(capture.N, dtype=float))
         if filled.any():
@@ -415,6 +418,7 @@ def surface_geometry(capture: Capture) -> SurfaceGeometry:
         if filled.any():
             lost = filled & ~fitted
             P[lost], N[lost] = P_fill[lost], N_fill[lost]
+        parameters = fit.parameters
         sd = fit.sd_rad[measured & fitted]
         summary = {"normals": "fitted", "surface": fit.kind, "range": dataclasses.asdict(model),
                    "normal_sd_deg": float(np.degrees(np.nanmedian(sd))) if np.isfinite(sd).any() else None}
@@ -423,4 +427,4 @@ def surface_geometry(capture: Capture) -> SurfaceGeometry:
     cos_r = np.where(finite, channel_sum(np.where(finite[..., None], N, 0.0) * V), 0.0)
     facing = finite & (cos_r > 0)
     return SurfaceGeometry(P=P, N=N, V=V, cos_r=cos_r, surface=facing & measured, filled=facing & filled,
-                           summary=summary)
+                           summary=summary, parameters=parameters, range=model)

@@ -37,8 +37,9 @@ from scipy.ndimage import distance_transform_cdt
 from . import local_windows, whole_surface
 from .pinhole import optical_axis, pinhole_matrix
 from .range_error import RangeModel, measured_range
+from .whole_surface import SurfaceParameters
 
-__all__ = ["FittedSurface", "RangeModel", "fit_surface", "measured_range", "optical_axis", "pinhole_matrix"]
+__all__ = ["FittedSurface", "RangeModel", "SurfaceParameters", "fit_surface", "measured_range", "optical_axis", "pinhole_matrix"]
 
 #: Relative precision of float32 ``P`` (half an ulp over √3): the noise floor of an exact range.
 FLOAT32_FLOOR = 2.0**-24 / np.sqrt(3.0)
@@ -78,6 +79,9 @@ class FittedSurface:
     kind : {"plane", "sphere", "quadric", "local"}
         One plane fitted the whole surface, one sphere, one quadric, or none
         (windows per pixel).
+    parameters : SurfaceParameters or None
+        A whole plane's or sphere's parameters with their covariance (what
+        ``full``'s joint fit refines); None for a quadric and local windows.
     """
 
     P: np.ndarray
@@ -86,6 +90,7 @@ class FittedSurface:
     half_width: np.ndarray
     model: RangeModel
     kind: str
+    parameters: SurfaceParameters | None = None
 
     @property
     def plane(self) -> bool:
@@ -144,9 +149,9 @@ def fit_surface(P: np.ndarray, camera_position: np.ndarray, rays: np.ndarray, *,
                                    ("quadric", -2, whole_surface.one_quadric)):
             whole = fitter(P, valid, rays, cam, model, floor)
             if whole is not None:
-                Pq, Nq, sdq = whole
+                Pq, Nq, sdq, parameters = whole
                 return FittedSurface(P=Pq, N=Nq, sd_rad=sdq, half_width=np.where(valid, code, 0), model=model,
-                                     kind=kind)
+                                     kind=kind, parameters=parameters)
     if plane is not None:
         (a, b, c), cov = plane
         fit[valid] = np.stack([a + b * cc[valid] + c * rr[valid], np.full(valid.sum(), b), np.full(valid.sum(), c),
@@ -187,5 +192,42 @@ def fit_surface(P: np.ndarray, camera_position: np.ndarray, rays: np.ndarray, *,
             N[grazing] = local_windows.tangent_fit(P, valid, N, grazing,
                                                    np.clip(half[grazing], 2, local_windows.TANGENT_MAX))
             Pf[grazing] = P[grazing]  # the inverse depth's value is what bends there: keep the measured point
+    parameters = None if plane is None else _plane_parameters(P, Pf, N, valid, cam, rays, model, floor, plane[1])
     return FittedSurface(P=Pf, N=N, sd_rad=sd, half_width=half, model=model,
-                         kind="local" if plane is None else "plane")
+                         kind="local" if plane is None else "plane", parameters=parameters)
+
+
+def _plane_parameters(P: np.ndarray, Pf: np.ndarray, N: np.ndarray, valid: np.ndarray, cam: np.ndarray,
+                      rays: np.ndarray, model: RangeModel, floor: float, cov_abc: np.ndarray
+                      ) -> SurfaceParameters | None:
+    """The whole plane as ``m·(X − cam) = 1`` with its covariance.
+
+    ``m`` is that of the fitted points ``Pf`` and normals ``N``
+    (:func:`~nearlight.estimator.whole_surface.plane_in_space`'s, what every
+    method sees). Its covariance carries over that of
+    :func:`~nearlight.estimator.whole_surface.one_plane`'s inverse-depth
+    coefficients: with ``R = M·[c, r, 1]`` (``R·axis = 1``, :func:`pinhole_matrix`), a
+    point ``cam + z R`` of the plane has inverse depth ``f = 1/z = m·R``, so
+    ``f = a + b c + c' r`` has ``[b, c', a] = Mᵀ m``: ``m = M⁻ᵀ Π [a, b, c']`` (``Π``
+    the reordering) and ``C_m = M⁻ᵀ Π C Πᵀ M⁻¹``. On a quantised range, the
+    wider of that and the staircase's simulated one
+    (:func:`~nearlight.estimator.whole_surface.staircase_cov`, refitting the
+    points in space as ``plane_in_space`` does).
+    """
+    on = valid & np.all(np.isfinite(Pf), axis=-1) & np.all(np.isfinite(N), axis=-1)
+    if not on.any():
+        return None
+    i, j = np.argwhere(on)[0]
+    n = N[i, j]
+    m = n / float(n @ (Pf[i, j] - cam))
+    T = np.linalg.inv(pinhole_matrix(rays)).T[:, [2, 0, 1]]  # M⁻ᵀ Π: [a, b, c'] -> m
+    cov = T @ cov_abc @ T.T
+    if model.quantum_m > 0:
+        def refit(X: np.ndarray) -> np.ndarray:
+            w = 1.0 / whole_surface.normal_noise(np.broadcast_to(n, X.shape), whole_surface.directions(X, cam), rays,
+                                                 model, floor) ** 2
+            centroid, normal = whole_surface.weighted_plane(X, w)
+            return normal / float(normal @ (centroid - cam))
+
+        cov = whole_surface.wider(cov, whole_surface.staircase_cov("plane", m, refit, P[on], cam, rays, model))
+    return SurfaceParameters("plane", m, cov)

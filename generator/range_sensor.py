@@ -24,6 +24,7 @@ from typing import Literal
 import numpy as np
 
 from ..capture import Capture
+from ..physics.depth import read_depth
 from .noise import _with_noise, noise_rngs, with_range_sensor
 
 AXES = ("ray", "z")
@@ -68,10 +69,9 @@ def perturb_range(capture: Capture, *, sigma_m: float = 0.0, quantum_m: float = 
     else:
         depth = np.linalg.norm(rel, axis=-1)
     _, rng = noise_rngs(seed)
-    moved = depth + (rng.normal(0.0, sigma_m, size=depth.shape) if sigma_m > 0 else 0.0)
+    noise = rng.normal(0.0, sigma_m, size=depth.shape) if sigma_m > 0 else 0.0
     offset = float(rng.uniform(0.0, quantum_m)) if quantum_m > 0 else 0.0
-    if quantum_m > 0:
-        moved = np.round((moved - offset) / quantum_m) * quantum_m + offset
+    moved = read_depth(depth, noise=noise, quantum_m=quantum_m, offset_m=offset)
     with np.errstate(invalid="ignore", divide="ignore"):
         P = (cam + rel * (moved / depth)[..., None]).astype(np.float32)
     extra = dict(capture.extra)

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from ...estimator.geometry import capture_rays
+from ...estimator.whole_surface import on_rays
 from ...estimator.fitting import central_jacobian
 from ...physics.reflectance import specular_radiance
 from .crlb import bound_columns, specular_variance, truth_parameters
@@ -72,24 +73,6 @@ def _equilibrated_bound(model, theta: np.ndarray, noise_var: np.ndarray, steps: 
     if np.linalg.cond(E) > MAX_CONDITION:
         return np.full_like(F, np.nan)
     return np.linalg.inv(E) / np.outer(d, d)
-
-
-def _intersect(family: str, s: np.ndarray, origin: np.ndarray, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distance along each unit ray ``rays`` (n, 3) from ``origin`` to the surface ``s``, and its unit normal
-    (towards the camera); NaN where a ray misses."""
-    if family == "plane":  # m·(X − origin) = 1
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = 1.0 / (rays @ s)
-        n = np.broadcast_to(s / np.linalg.norm(s), rays.shape)
-    else:
-        c, R = s[:3], s[3]
-        b = rays @ (origin - c)
-        disc = b * b - (np.sum((origin - c) ** 2) - R * R)
-        with np.errstate(invalid="ignore"):
-            t = -b - np.sqrt(np.where(disc >= 0, disc, np.nan))
-        n = (origin + t[:, None] * rays - c) / R
-    n = np.where((np.sum(n * rays, axis=-1) > 0)[:, None], -n, n)
-    return t, n
 
 
 def surface_family(P: np.ndarray, origin: np.ndarray) -> tuple[str, np.ndarray] | None:
@@ -168,11 +151,11 @@ def range_crlb(capture: Any, *, noise_var: np.ndarray, range_sigma_m: float, axi
 
     def model(theta: np.ndarray) -> np.ndarray:
         s = theta[7:]
-        t, n = _intersect(family, s, cam, r_counted)
+        t, n = on_rays(family, s, cam, r_counted)
         P = cam + t[:, None] * r_counted
         b = {"model": bsdf["model"], lobe.colour_key: theta[3:6], lobe.roughness_key: theta[6]}
         Is = specular_radiance(P, n, cam, theta[:3], 1.0, b).ravel()
-        depth = _intersect(family, s, cam, r_all)[0] * to_depth
+        depth = on_rays(family, s, cam, r_all)[0] * to_depth
         return np.concatenate([Is, depth])
 
     theta = np.concatenate([lamp, colour, [rough], s0])

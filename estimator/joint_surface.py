@@ -1,0 +1,151 @@
+"""``full``'s errors-in-variables fit: the lamp, colour and roughness refined together with the surface.
+
+A surface fitted to a noisy range (:mod:`~nearlight.estimator.surfaces`) is
+wrong by its fitting error, and taken as given that error goes into the lamp
+unseen: a normal tilted by a fraction of a degree turns the mirror ray by
+twice as much, and the image-only covariance knows nothing of it (measured:
+``benchmarks/bench_range_bound.py``'s coverage column, 0.99 → 0.12 on the
+board at 1 mm of range noise). The specular image knows the surface near the
+highlight too: where the lobe's pixels fall fixes where the half-vector
+meets the normal. So when the surface is one plane or one sphere
+(:class:`~nearlight.estimator.whole_surface.SurfaceParameters`), its
+parameters ``g`` join the fit:
+
+* the image's residuals, each pixel's point and normal those of the surface
+  ``g`` where the pixel's own direction from the camera meets it
+  (:func:`~nearlight.estimator.whole_surface.on_rays`), weighted by the
+  camera noise as in the image-only fit;
+* the range's, as the range fit's information about ``g``: ``s·L(g − ĝ)`` with
+  ``LᵀL = C_g⁻¹`` (``ĝ, C_g`` the range fit's), ``s`` the image residuals'
+  scale (1 when the weights are the camera's, the residuals' RMS otherwise).
+
+For a linear range model this quadratic is the range's whole log-likelihood
+about ``g`` up to a constant (the range residuals' sufficient statistic), so
+the fit is the one that stacks every range pixel beside every image pixel,
+as the bound does (:mod:`nearlight.evaluation.scoring.range_bound`), at the
+cost of a few more image evaluations. The covariance of ``(lamp, colour,
+roughness, g)`` is the robust fit's sandwich over both; its lamp block now
+holds the geometry's share. ``C_g`` is the fit's own: the plane's the larger
+of the independent-noise one and a block jackknife (a staircase's errors are
+correlated over a terrace), the sphere's its weighted Gauss–Newton's.
+
+A quadric and local windows keep their surface as given (their parameters
+are not refined, yet); so does a capture whose range states no error.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..physics.reflectance import normalize
+from .fitting import robust_fit
+from .pointlamp import FINAL_TOL, PointLampModel, lamp_bounds, typical_scale
+from .whole_surface import SurfaceParameters, on_rays
+
+#: The surface's central-difference step, in standard deviations of each parameter (``C_g``'s diagonal):
+#: far above float rounding (the points move by ~1e-3 of the range noise, ≥ 1e-8 m) and far below the
+#: parameters' curvature scale.
+STEP_SD = 1e-3
+
+
+class JointModel:
+    """The point-lamp model with its surface as parameters: ``p = (x, y, z, colour_r, colour_g, colour_b, a, g…)``.
+
+    Parameters
+    ----------
+    base : PointLampModel
+        The image-only model at the range fit's surface (its pixels, weights, lobe).
+    surface : SurfaceParameters
+        ``ĝ`` and ``C_g`` of the range fit.
+    scale : float
+        The image residuals' scale ``s`` the prior is weighed with.
+    """
+
+    def __init__(self, base: PointLampModel, surface: SurfaceParameters, *, scale: float = 1.0):
+        self.base, self.surface = base, surface
+        cam = np.asarray(base.camera, dtype=float)
+        d = base.P - cam
+        self.near = np.linalg.norm(d, axis=1)
+        self.directions = d / self.near[:, None]
+        vals, vecs = np.linalg.eigh(surface.cov)
+        vals = np.maximum(vals, 1e-30 * max(float(vals.max()), 1e-300))
+        self.sqrt_info = float(scale) * (vecs / np.sqrt(vals)).T  # s·L, LᵀL = C_g⁻¹
+        self.step = STEP_SD * np.sqrt(np.maximum(np.diag(surface.cov), 1e-300))
+        self.k = len(surface.g)
+        self._models: dict[bytes, PointLampModel] = {}
+
+    def at(self, g: np.ndarray) -> PointLampModel:
+        """The image-only model on the surface ``g`` (the last few kept: the solver asks again at the same ``g``)."""
+        key = np.asarray(g, dtype=float).tobytes()
+        found = self._models.get(key)
+        if found is None:
+            cam = np.asarray(self.base.camera, dtype=float)
+            t, n = on_rays(self.surface.kind, g, cam, self.directions, self.near)
+            miss = ~np.isfinite(t)  # a grazing ray the moved sphere misses: the pixel stays where it was
+            P = np.where(miss[:, None], self.base.P, cam + t[:, None] * self.directions)
+            N = normalize(np.where(miss[:, None], self.base.N, n))
+            b = self.base
+            found = PointLampModel(P, N, b.camera, b.observed, lobe=b.lobe, std=b.std)
+            if len(self._models) > 2 * self.k + 2:
+                self._models.clear()
+            self._models[key] = found
+        return found
+
+    def residuals(self, p: np.ndarray) -> np.ndarray:
+        """Image residuals at ``(x, g)`` then the range's ``s·L(g − ĝ)``, shape ``(n·3 + k,)``."""
+        x, g = p[:7], p[7:]
+        return np.concatenate([self.at(g).residuals(x), self.sqrt_info @ (g - self.surface.g)])
+
+    def jacobian(self, p: np.ndarray) -> np.ndarray:
+        """``∂ residuals / ∂ p``, shape ``(n·3 + k, 7 + k)``: the image's analytic in ``x``, central differences
+        in ``g`` (:data:`STEP_SD`), the prior's ``s·L``."""
+        x, g = p[:7], p[7:]
+        Jx = self.at(g).jacobian(x)
+        Jg = np.empty((Jx.shape[0], self.k))
+        for i, h in enumerate(self.step):
+            e = np.zeros(self.k)
+            e[i] = h
+            Jg[:, i] = (self.at(g + e).residuals(x) - self.at(g - e).residuals(x)) / (2.0 * h)
+        top = np.hstack([Jx, Jg])
+        bottom = np.hstack([np.zeros((self.k, 7)), self.sqrt_info])
+        return np.vstack([top, bottom])
+
+
+def joint_fit(base: PointLampModel, surface: SurfaceParameters, x0: np.ndarray, distance: float, *, loss: str,
+              f_scale: float | None, floor: float, scale: float) -> dict:
+    """The robust fit of :class:`JointModel` from the image-only fit ``x0`` and the range fit's surface.
+
+    Parameters
+    ----------
+    base : PointLampModel
+        The image-only model (chosen lobe, every fit pixel).
+    surface : SurfaceParameters
+    x0 : ndarray, shape (7,)
+        The image-only fit.
+    distance : float
+        Camera–highlight distance (m), for the parameters' typical scales.
+    loss, f_scale, floor
+        As :func:`~nearlight.estimator.pointlamp.final_fit`'s.
+    scale : float
+        The image residuals' scale (see :class:`JointModel`).
+
+    Returns
+    -------
+    dict
+        :func:`~nearlight.estimator.fitting.robust_fit`'s result over ``7 + k``
+        parameters (``x``, ``cov``, …), with ``chi2`` the image residuals' sum of
+        squares at the fit and ``prior_chi2`` the range term's ``|L(g − ĝ)|²``.
+    """
+    model = JointModel(base, surface, scale=scale)
+    lower, upper = lamp_bounds(7)
+    k = model.k
+    p0 = np.concatenate([x0, surface.g])
+    typical = np.concatenate([typical_scale(x0, distance), np.sqrt(np.maximum(np.diag(surface.cov), 1e-300))])
+    fit = robust_fit(model.residuals, p0, typical=typical, lower=np.concatenate([lower, np.full(k, -np.inf)]),
+                     upper=np.concatenate([upper, np.full(k, np.inf)]), loss=loss, f_scale=f_scale,
+                     jac=model.jacobian, f_floor=floor, start_is_fit=True, tol=FINAL_TOL, prior_rows=k,
+                     prior_var=scale**2)
+    r = model.residuals(fit["x"])
+    fit["chi2"] = float(np.sum(np.square(r[:-k])))
+    fit["prior_chi2"] = float(np.sum(np.square(r[-k:]))) / scale**2
+    return fit
