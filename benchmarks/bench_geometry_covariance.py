@@ -33,6 +33,11 @@ is not); what neither sees is the quantised plane's bias (the staircase's sawtoo
 with the pixel grid moves the fit the same way in every tile): that one needs the image in the
 fit (issue 35).
 
+``full`` now does put the surface into its fit (``surface="auto"``,
+``nearlight.estimator.joint_surface``); this black-box propagation stays as an
+independent check of that fit's covariance (``tests/estimator/test_joint_surface.py``
+compares the two on one capture; here they can be compared over seeds).
+
 Usage::
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_geometry_covariance.py --seeds 100 --workers 2

@@ -18,21 +18,11 @@ from nearlight.estimator.fitting import robust_fit
 from nearlight.estimator.full import full_estimate
 from nearlight.estimator.geometry import capture_rays, surface_geometry
 from nearlight.estimator.whole_surface import on_rays
-from nearlight.generator.analytic import DEFAULT_LAMP_POSITION, analytic_capture
+from nearlight.generator.analytic import DEFAULT_LAMP_POSITION
 from nearlight.generator.noise import add_camera_noise
 from nearlight.generator.range_sensor import perturb_range
 
 LOW_NOISE = {"full_well": 50000, "read_noise": 3.0, "bits": 14}  # sweeps/sensitivity.yaml's "low"
-
-
-@pytest.fixture(scope="module")
-def board():
-    return analytic_capture(shape="board", width=160, height=120)
-
-
-@pytest.fixture(scope="module")
-def sphere():
-    return analytic_capture(shape="sphere", width=160, height=120)
 
 
 def _error_m(est) -> float:

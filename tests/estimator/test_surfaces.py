@@ -26,16 +26,6 @@ def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
 
 
-@pytest.fixture(scope="module")
-def board():
-    return analytic_capture(shape="board", width=160, height=120)
-
-
-@pytest.fixture(scope="module")
-def sphere():
-    return analytic_capture(shape="sphere", width=160, height=120)
-
-
 def _fit(clean, **range_error):
     """The capture with its range perturbed (N dropped), and the surface fitted to it."""
     cap = perturb_range(clean, **range_error).replace(N=None)
