@@ -123,6 +123,18 @@ def _surface_fit(obs: Observation, surface: str) -> tuple[bool, str]:
     return True, f"one {geometry.parameters.kind} fitted to a range with error {sigma:.3g} m"
 
 
+def fixed_surface_warning(obs: Observation, joint: bool) -> str | None:
+    """The warning of a covariance that leaves out a noisy range's share (else None): the surface fitted to a range
+    with an error above :data:`JOINT_MIN_RANGE_M` and taken as given, so the ellipsoid is the image's alone and too
+    small where the surface's error moves the lamp (its thinnest axis, the mirror ray's)."""
+    model = obs.geometry.range
+    if joint or model is None or not model.equivalent_sigma_m > JOINT_MIN_RANGE_M:
+        return None
+    return (f"covariance: the image's share only; the {obs.geometry.summary.get('surface', 'fitted')} surface fitted "
+            f"to a range with error {model.equivalent_sigma_m:.3g} m was taken as given (its error moves the lamp "
+            "beyond the stated ellipsoid)")
+
+
 def no_specular_warning(evidence: float) -> str | None:
     """The warning of a fit whose lobe explains the pixels hardly better than no specular (else None)."""
     if evidence >= SPECULAR_EVIDENCE:
@@ -383,4 +395,4 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
         diagnostics={**init.diagnostics, "n_specular_pixels": int(obs.mask.sum()),
                      "n_start_pixels": int(start.mask.sum())},
         timings=timings,
-    ).with_warning(no_specular_warning(evidence_specular)), obs
+    ).with_warning(no_specular_warning(evidence_specular)).with_warning(fixed_surface_warning(obs, joint)), obs

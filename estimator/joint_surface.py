@@ -42,9 +42,9 @@ from .fitting import robust_fit
 from .pointlamp import FINAL_TOL, PointLampModel, lamp_bounds, typical_scale
 from .whole_surface import SurfaceParameters, on_rays
 
-#: The surface's central-difference step, in standard deviations of each parameter (``C_g``'s diagonal):
+#: The surface's forward-difference step, in standard deviations of each parameter (``C_g``'s diagonal):
 #: far above float rounding (the points move by ~1e-3 of the range noise, ≥ 1e-8 m) and far below the
-#: parameters' curvature scale.
+#: parameters' curvature scale (the truncation error, ~step × curvature, is ~1e-3 of the derivative at most).
 STEP_SD = 1e-3
 
 
@@ -86,7 +86,7 @@ class JointModel:
             N = normalize(np.where(miss[:, None], self.base.N, n))
             b = self.base
             found = PointLampModel(P, N, b.camera, b.observed, lobe=b.lobe, std=b.std)
-            if len(self._models) > 2 * self.k + 2:
+            if len(self._models) > self.k + 2:
                 self._models.clear()
             self._models[key] = found
         return found
@@ -97,15 +97,17 @@ class JointModel:
         return np.concatenate([self.at(g).residuals(x), self.sqrt_info @ (g - self.surface.g)])
 
     def jacobian(self, p: np.ndarray) -> np.ndarray:
-        """``∂ residuals / ∂ p``, shape ``(n·3 + k, 7 + k)``: the image's analytic in ``x``, central differences
+        """``∂ residuals / ∂ p``, shape ``(n·3 + k, 7 + k)``: the image's analytic in ``x``, forward differences
         in ``g`` (:data:`STEP_SD`), the prior's ``s·L``."""
         x, g = p[:7], p[7:]
-        Jx = self.at(g).jacobian(x)
+        at = self.at(g)
+        Jx = at.jacobian(x)
+        r0 = at.residuals(x)
         Jg = np.empty((Jx.shape[0], self.k))
         for i, h in enumerate(self.step):
             e = np.zeros(self.k)
             e[i] = h
-            Jg[:, i] = (self.at(g + e).residuals(x) - self.at(g - e).residuals(x)) / (2.0 * h)
+            Jg[:, i] = (self.at(g + e).residuals(x) - r0) / h
         top = np.hstack([Jx, Jg])
         bottom = np.hstack([np.zeros((self.k, 7)), self.sqrt_info])
         return np.vstack([top, bottom])

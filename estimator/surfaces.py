@@ -209,10 +209,10 @@ def _plane_parameters(P: np.ndarray, Pf: np.ndarray, N: np.ndarray, valid: np.nd
     coefficients: with ``R = M·[c, r, 1]`` (``R·axis = 1``, :func:`pinhole_matrix`), a
     point ``cam + z R`` of the plane has inverse depth ``f = 1/z = m·R``, so
     ``f = a + b c + c' r`` has ``[b, c', a] = Mᵀ m``: ``m = M⁻ᵀ Π [a, b, c']`` (``Π``
-    the reordering) and ``C_m = M⁻ᵀ Π C Πᵀ M⁻¹``. On a quantised range, the
-    wider of that and the staircase's simulated one
-    (:func:`~nearlight.estimator.whole_surface.staircase_cov`, refitting the
-    points in space as ``plane_in_space`` does).
+    the reordering) and ``C_m = M⁻ᵀ Π C Πᵀ M⁻¹``. On a quantised range, that
+    plus the staircase's simulated one
+    (:func:`~nearlight.estimator.whole_surface.staircase_cov`, for the fit of
+    the points in space as ``plane_in_space`` makes it).
     """
     on = valid & np.all(np.isfinite(Pf), axis=-1) & np.all(np.isfinite(N), axis=-1)
     if not on.any():
@@ -223,11 +223,13 @@ def _plane_parameters(P: np.ndarray, Pf: np.ndarray, N: np.ndarray, valid: np.nd
     T = np.linalg.inv(pinhole_matrix(rays)).T[:, [2, 0, 1]]  # M⁻ᵀ Π: [a, b, c'] -> m
     cov = T @ cov_abc @ T.T
     if model.quantum_m > 0:
-        def refit(X: np.ndarray) -> np.ndarray:
-            w = 1.0 / whole_surface.normal_noise(np.broadcast_to(n, X.shape), whole_surface.directions(X, cam), rays,
-                                                 model, floor) ** 2
-            centroid, normal = whole_surface.weighted_plane(X, w)
-            return normal / float(normal @ (centroid - cam))
-
-        cov = whole_surface.wider(cov, whole_surface.staircase_cov("plane", m, refit, P[on], cam, rays, model))
+        u = whole_surface.directions(P[on], cam)
+        t = 1.0 / (u @ m)  # the fitted plane along each pixel's ray
+        w = 1.0 / whole_surface.normal_noise(np.broadcast_to(n, u.shape), u, rays, model, floor)
+        along = whole_surface.axis_cosine(u, rays, model)
+        # the weighted distance to the plane w (m·(X − cam) − 1)/|m|: its Jacobian in m, and its change per metre
+        # of reading error along the axis (the point moves by e/along along its ray)
+        J = (w * t)[:, None] * u / np.linalg.norm(m)
+        sens = w * (u @ m) / np.linalg.norm(m) / along
+        cov = cov + whole_surface.staircase_cov(J, sens, t * along, model)
     return SurfaceParameters("plane", m, cov)

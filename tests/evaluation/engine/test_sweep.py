@@ -164,6 +164,23 @@ def test_the_paper_sweeps_load_in_both_profiles():
             assert {t.seed for t in s.tasks} == {0} and not s.crlb
 
 
+@pytest.mark.parametrize("name", ["bookend", "curved"])
+def test_the_bench_seed_sweeps_are_the_paper_experiments_over_20_seeds(name):
+    # sweeps/bench_seeds/*.yaml (issue 35's check of what the range quantum costs on the bench rig): the paper
+    # sweep's scene, rig and camera, its bench rows with and without the quantum, `full` over seeds 0-19
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3] / "sweeps"
+    paper, seeds = load_sweep(root / "paper" / f"{name}.yaml"), load_sweep(root / "bench_seeds" / f"{name}.yaml")
+    bench = [t for t in paper.tasks if t.config["set"] in ("bench", "bench, range not quantised") and t.method.label == "full"]
+    assert {t.seed for t in seeds.tasks} == set(range(20)) and {t.method.label for t in seeds.tasks} == {"full"}
+    for label in ("bench", "bench, range not quantised"):
+        ours = [t for t in seeds.tasks if t.config["set"] == label]
+        theirs = [t for t in bench if t.config["set"] == label]
+        assert len(ours) == 20 and len(theirs) == 1
+        assert all(t.scene == theirs[0].scene for t in ours)
+
+
 def test_realism_axis_and_per_shot_nuisances_run_every_seed():
     """`realism` is an axis (a top-level scene key); a configuration whose captures draw per-shot
     nuisances from the seed (lab: analyzer jitter, lamp flicker) runs every seed, as noise does,
