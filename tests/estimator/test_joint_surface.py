@@ -168,9 +168,10 @@ def test_the_joint_covariance_is_the_propagated_one(board):
 def test_the_range_fits_covariance_covers_its_scatter(shape, error, k, request):
     """What the joint fit's prior needs: the range fit's ``ĝ`` scattered over seeds as its own ``C_g`` says. Mean
     squared Mahalanobis distance from the exact range's fit over 20 seeds, against the dimension ``k`` (a
-    chi-square's mean; its s.e. over 20 seeds about √(2k/20) ≈ 0.6). Measured over 40 seeds: board 1-mm steps 2.2
-    (one of its 3 parameters held by the scene's symmetry), sphere 1-mm steps 2.0, sphere 1 mm of noise 4.6;
-    before the staircase simulation and the sphere fit's normals from the sphere: 26, 19 and 22."""
+    chi-square's mean; its s.e. over 20 seeds about √(2k/20) ≈ 0.6). Measured: board 1-mm steps 1.65 (one of its
+    3 parameters held by the scene's symmetry), sphere 1-mm steps 1.81, sphere 1 mm of noise 4.12; before the
+    staircase simulation and the sphere fit's normals from the sphere (40 seeds, their mean covariance): 26, 19
+    and 22."""
     clean = request.getfixturevalue(shape)
     g0 = surface_geometry(clean.replace(N=None)).parameters.g
     m2 = []
