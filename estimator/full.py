@@ -33,7 +33,7 @@ from ..errors import UserError
 from ..physics.reflectance import LOBES, peak_shape, roughness_for_ts_sigma, ts_sigma
 from .first_stage import ray_stage, stage_one
 from .fitting import LOSSES
-from .joint_surface import joint_fit
+from .joint_surface import JOINT_MIN_RANGE_M, fixed_surface_warning, joint_fit
 from .lobes import FAMILIES
 from .observation import THRESHOLD, Observation, observation_of
 from .options import Choice, Count, CountOrZero, Positive, forwards
@@ -76,12 +76,6 @@ NOISE_MODELS = ("none", "auto")
 #: ``full``'s ``surface`` option: the surface refined with the lamp or taken as given.
 SURFACE_FITS = ("auto", "joint", "fixed")
 
-#: ``surface="auto"`` refines the surface with the lamp when the range's error (stated in ``rig.range``
-#: or measured) is above this, metres: far below any range sensor's (≥ 5e-5 m in every rig and study
-#: here) and above float32 rounding of ``P`` (measured on exact analytic captures: 1.5e-9 m on the
-#: board, 7.8e-8 m on the sphere), so an exact range costs nothing.
-JOINT_MIN_RANGE_M = 1e-6
-
 #: About how many pixels the multi-start's short fits use (every k-th of the fitted pixels).
 TRIAL_PIXELS = 500
 
@@ -121,18 +115,6 @@ def _surface_fit(obs: Observation, surface: str) -> tuple[bool, str]:
     if surface == "auto" and not sigma > JOINT_MIN_RANGE_M:
         return False, f"the range's error {sigma:.3g} m is below {JOINT_MIN_RANGE_M:g} m"
     return True, f"one {geometry.parameters.kind} fitted to a range with error {sigma:.3g} m"
-
-
-def fixed_surface_warning(obs: Observation, joint: bool) -> str | None:
-    """The warning of a covariance that leaves out a noisy range's share (else None): the surface fitted to a range
-    with an error above :data:`JOINT_MIN_RANGE_M` and taken as given, so the ellipsoid is the image's alone and too
-    small where the surface's error moves the lamp (its thinnest axis, the mirror ray's)."""
-    model = obs.geometry.range
-    if joint or model is None or not model.equivalent_sigma_m > JOINT_MIN_RANGE_M:
-        return None
-    return (f"covariance: the image's share only; the {obs.geometry.summary.get('surface', 'fitted')} surface fitted "
-            f"to a range with error {model.equivalent_sigma_m:.3g} m was taken as given (its error moves the lamp "
-            "beyond the stated ellipsoid)")
 
 
 def no_specular_warning(evidence: float) -> str | None:
@@ -265,7 +247,7 @@ def full_estimate(
         parameters fitted with the lamp, colour and roughness against the image
         and the range together; the covariance then holds the geometry's
         share): ``auto`` (the default) when the range's error is above
-        :data:`JOINT_MIN_RANGE_M`, ``joint`` whenever the surface is a plane or a
+        :data:`~nearlight.estimator.joint_surface.JOINT_MIN_RANGE_M`, ``joint`` whenever the surface is a plane or a
         sphere, ``fixed`` never. Which ran, and why: ``stages["full"]["surface_fit"]``
         (``"joint"`` or ``"fixed"``) and ``surface_fit_reason``; the refined
         surface in ``surface_parameters``. With several lamps the surface is

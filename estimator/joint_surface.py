@@ -39,8 +39,15 @@ import numpy as np
 
 from ..physics.reflectance import normalize
 from .fitting import robust_fit
+from .observation import Observation
 from .pointlamp import FINAL_TOL, PointLampModel, lamp_bounds, typical_scale
 from .whole_surface import SurfaceParameters, on_rays
+
+#: ``full``'s ``surface="auto"`` refines the surface with the lamp when the range's error (stated in
+#: ``rig.range`` or measured) is above this, metres: far below any range sensor's (≥ 5e-5 m in every rig and
+#: study here) and above float32 rounding of ``P`` (measured on exact analytic captures: 1.5e-9 m on the
+#: board, 7.8e-8 m on the sphere), so an exact range costs nothing.
+JOINT_MIN_RANGE_M = 1e-6
 
 #: The surface's forward-difference step, in standard deviations of each parameter (``C_g``'s diagonal):
 #: far above float rounding (the points move by ~1e-3 of the range noise, ≥ 1e-8 m) and far below the
@@ -151,3 +158,15 @@ def joint_fit(base: PointLampModel, surface: SurfaceParameters, x0: np.ndarray, 
     fit["chi2"] = float(np.sum(np.square(r[:-k])))
     fit["prior_chi2"] = float(np.sum(np.square(r[-k:]))) / scale**2
     return fit
+
+
+def fixed_surface_warning(obs: Observation, joint: bool) -> str | None:
+    """The warning of a covariance that leaves out a noisy range's share (else None): the surface fitted to a range
+    with an error above :data:`JOINT_MIN_RANGE_M` and taken as given (``joint`` False), so the ellipsoid is the
+    image's alone and too small where the surface's error moves the lamp (its thinnest axis, the mirror ray's)."""
+    model = obs.geometry.range
+    if joint or model is None or not model.equivalent_sigma_m > JOINT_MIN_RANGE_M:
+        return None
+    return (f"covariance: the image's share only; the {obs.geometry.summary.get('surface', 'fitted')} surface fitted "
+            f"to a range with error {model.equivalent_sigma_m:.3g} m was taken as given (its error moves the lamp "
+            "beyond the stated ellipsoid)")

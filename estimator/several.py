@@ -40,6 +40,7 @@ from ..physics.reflectance import LOBES, peak_shape, roughness_for_ts_sigma, ts_
 from .first_stage import RaySearch, fast_search, t_search_defaults
 from .fitting import log_regression
 from .highlights import HIGHLIGHT_FLOOR, Highlights, highlights_of, segment_highlights
+from .joint_surface import fixed_surface_warning
 from .lampsum import SeveralLampModel, lamp_phases
 from .lobes import FAMILIES
 from .observation import Observation
@@ -478,11 +479,12 @@ def several_estimate(capture: Capture, one: Estimate, obs: Observation, *, lamps
         stages={"init": one.stages["init"], "full": stage},
         diagnostics=_diagnostics(one, found),
         timings={**one.timings, "several": time.perf_counter() - clock},
-    )
+    ).with_warning(fixed_surface_warning(obs, joint=False))  # K lamps: the surface taken as given
 
 
 def _diagnostics(one: Estimate, found: Highlights) -> dict:
-    """The one-lamp fit's diagnostics without its several-highlights warning (this fit counts), and the highlights."""
+    """The one-lamp fit's diagnostics without its warnings (they are about its fit; this fit counts the
+    highlights), and the highlights."""
     out = {k: v for k, v in one.diagnostics.items() if k != "warnings"}
     out["highlights"] = {"peak_pixels": [list(p) for p in found.peaks], "heights": found.heights.tolist()}
     return out
@@ -493,5 +495,5 @@ def _with_count(one: Estimate, evidence: dict, found: Highlights) -> Estimate:
     s = one.stages["full"]
     stage = {**s, "n_lamps": 1, "lamps_option": "auto", "lamps_evidence": evidence,
              "lamps": [{"position": np.asarray(s["lamp_position"]).tolist(), "colour": np.asarray(s["ks"]).tolist()}]}
-    return dataclasses.replace(one, stages={**one.stages, "full": stage},
-                               diagnostics=_diagnostics(one, found))
+    kept = {"warnings": one.diagnostics["warnings"]} if one.diagnostics.get("warnings") else {}  # its own fit's
+    return dataclasses.replace(one, stages={**one.stages, "full": stage}, diagnostics={**_diagnostics(one, found), **kept})
