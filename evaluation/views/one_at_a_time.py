@@ -148,6 +148,12 @@ def markdown_tables(table: pd.DataFrame, axis: str) -> list[tuple[str, pd.DataFr
     return out
 
 
+#: The heatmap's colour scale spans at least this ratio of medians (one decade), centred on theirs in log.
+MIN_DECADES = 10.0
+#: ... and the figure at least this wide, inches (the title's two lines fit).
+MIN_WIDTH_IN = 6.0
+
+
 def plot_heatmap(table: pd.DataFrame, axis: str, path: Path) -> None:
     """PNG: labels × methods, colour the median :data:`METRIC` (log scale), one panel per object.
 
@@ -162,12 +168,14 @@ def plot_heatmap(table: pd.DataFrame, axis: str, path: Path) -> None:
     methods = list(dict.fromkeys(table["method"]))
     finite = table["median"][np.isfinite(table["median"]) & (table["median"] > 0)]
     lo, hi = (float(finite.min()), float(finite.max())) if len(finite) else (0.1, 10.0)
-    lo, hi = (lo, hi) if hi > lo else (lo / 2, hi * 2)
+    if hi < lo * MIN_DECADES:  # medians within a few % of each other must not look a world apart
+        mid = np.sqrt(lo * hi)
+        lo, hi = mid / np.sqrt(MIN_DECADES), mid * np.sqrt(MIN_DECADES)
     norm = LogNorm(vmin=lo, vmax=hi)
     cmap = plt.get_cmap("YlOrRd").with_extremes(bad="0.6")
     fig, axs = plt.subplots(
         1, len(objects), squeeze=False, constrained_layout=True,
-        figsize=(2.6 + 1.25 * len(methods) * len(objects), 2.8 + 0.24 * len(labels)))
+        figsize=(max(2.6 + 1.25 * len(methods) * len(objects), MIN_WIDTH_IN), 2.8 + 0.24 * len(labels)))
     for ax, obj in zip(axs[0], objects):
         part = table[table["object"] == obj].set_index(["label", "method"])
         grid = np.full((len(labels), len(methods)), np.nan)
