@@ -108,6 +108,12 @@ QUOTES = [
     Quote("docs/physics.md", "the realism study's board at gamma 1.5: 8.97, `full` {} % off",
           "realism/report/one_at_a_time.csv",
           (Cell({"axis": "set", "object": "board", "label": "gamma 1.5", "method": "full"}, "median"),), "{:.1f}"),
+    Quote("docs/physics.md", "median lamp error on the bookend is {} % with the quantum and {} % without",
+          "bench_seeds/bookend/report/one_at_a_time.csv",
+          (Cell({"label": "bench"}, "median"), Cell({"label": "bench, range not quantised"}, "median")), "{:.2f}"),
+    Quote("docs/physics.md", "on the torus {} % with and {} % without",
+          "bench_seeds/curved/report/one_at_a_time.csv",
+          (Cell({"label": "bench"}, "median"), Cell({"label": "bench, range not quantised"}, "median")), "{:.2f}"),
     Quote("docs/render-compare.md", "the {} captures of that study",
           "sensitivity/results.parquet", (Count({"method": "full"}),)),
 ]
