@@ -146,6 +146,8 @@ def test_bad_method_or_option(capture_dir, capsys, argv, needle):
         ("full", "f_scale=-1", "f_scale: Input should be greater than 0"),
         ("full", "max_pixels=0", "max_pixels: Input should be greater than or equal to 1"),
         ("full", "strict_t_max=false", "'strict_t_max': not accepted by method full"),
+        ("full", "surface=refined", "surface: Value error, expected one of auto, joint, fixed"),
+        ("full", "surface=[joint]", "surface:"),
         ("paper", "max_outer=-1", "max_outer: Input should be greater than or equal to 1"),
         ("paper", "energy=joules", "energy: Value error, expected one of ratio, ratio-t, radiance"),
         ("paper", "dt=NaN", "dt:"),
