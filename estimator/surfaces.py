@@ -139,66 +139,69 @@ def fit_surface(P: np.ndarray, camera_position: np.ndarray, rays: np.ndarray, *,
     sf = sz / zs**2  # the inverse depth's standard deviation
     rr, cc = np.meshgrid(np.arange(H) + 0.5, np.arange(W) + 0.5, indexing="ij")
 
+    plane = whole_surface.one_plane(f, sf, valid, cc, rr)
+    if plane is not None:
+        return _whole_plane(P, valid, cam, rays, model, floor, *plane)
+    # the simplest family that fits within the noise: a sphere's 4 parameters before a quadric's 9
+    for kind, code, fitter in (("sphere", -3, whole_surface.one_sphere), ("quadric", -2, whole_surface.one_quadric)):
+        whole = fitter(P, valid, rays, cam, model, floor)
+        if whole is not None:
+            Pq, Nq, sdq, parameters = whole
+            return FittedSurface(P=Pq, N=Nq, sd_rad=sdq, half_width=np.where(valid, code, 0), model=model,
+                                 kind=kind, parameters=parameters)
     # per pixel: f's value and gradient (per pixel) at the centre, the gradient's s.d. per component, the window
     fit = np.full((H, W, 4), np.nan)
     half = np.zeros((H, W), int)
-    plane = whole_surface.one_plane(f, sf, valid, cc, rr)
-    if plane is None:
-        # the simplest family that fits within the noise: a sphere's 4 parameters before a quadric's 9
-        for kind, code, fitter in (("sphere", -3, whole_surface.one_sphere),
-                                   ("quadric", -2, whole_surface.one_quadric)):
-            whole = fitter(P, valid, rays, cam, model, floor)
-            if whole is not None:
-                Pq, Nq, sdq, parameters = whole
-                return FittedSurface(P=Pq, N=Nq, sd_rad=sdq, half_width=np.where(valid, code, 0), model=model,
-                                     kind=kind, parameters=parameters)
-    if plane is not None:
-        (a, b, c), cov = plane
-        fit[valid] = np.stack([a + b * cc[valid] + c * rr[valid], np.full(valid.sum(), b), np.full(valid.sum(), c),
-                               np.full(valid.sum(), np.sqrt(0.5 * (cov[1, 1] + cov[2, 2])))], axis=-1)
-        half[valid] = -1
-    else:
-        Xw, Nw = local_windows.fitted_windows(f, sf, valid, model, zs, P, fit, half)
+    Xw, Nw = local_windows.fitted_windows(f, sf, valid, model, zs, P, fit, half)
     done = np.isfinite(fit[..., 0])
-    N = np.full((H, W, 3), np.nan)
     sd = np.full((H, W), np.nan)
     f0, gc, gr, sg = fit[done].T
     x, y = cc[done], rr[done]
     n0 = _normal(M, f0, gc, gr, x, y)
-    N[done] = n0
-    # each tilt's standard deviation: the angle a one-s.d. change of each gradient component turns the normal by;
-    # for one plane on a lattice of pixels, each pixel taking its nearest's
-    at = done if plane is None else whole_surface.jackknife_lattice(done)
-    pick = at[done]
-    turn = [np.arccos(np.clip(np.sum(n0[pick] * _normal(M, f0[pick], gc[pick] + dc * sg[pick], gr[pick] + dr * sg[pick],
-                                                        x[pick], y[pick]), axis=-1), -1.0, 1.0))
+    # each tilt's standard deviation: the angle a one-s.d. change of each gradient component turns the normal by
+    turn = [np.arccos(np.clip(np.sum(n0 * _normal(M, f0, gc + dc * sg, gr + dr * sg, x, y), axis=-1), -1.0, 1.0))
             for dc, dr in ((1.0, 0.0), (0.0, 1.0))]
-    sd[at] = np.hypot(*turn)
-    if plane is not None:
-        sd = np.where(done, whole_surface.from_nearest(sd, at), np.nan)
-    if plane is None:
-        Pf, N = Xw, np.where(done[..., None], Nw, np.nan)
-    else:
-        Pf, N = whole_surface.plane_in_space(P, valid, cam, N, rays, model, floor)
+    sd[done] = np.hypot(*turn)
+    Pf, N = Xw, np.where(done[..., None], Nw, np.nan)
     flip = np.sum(np.nan_to_num(N) * -rel, axis=-1) < 0
     N[flip] = -N[flip]
-    if plane is None:
-        view = -rel / np.maximum(dist, 1e-300)[..., None]
-        # where the inverse depth bends towards a silhouette's singularity: grazing, and near the silhouette
-        # for the window the pixel took
-        edge = distance_transform_cdt(valid, metric="chessboard")
-        grazing = done & (np.sum(np.nan_to_num(N) * view, axis=-1) < GRAZING) & (edge <= 2 * np.abs(half) + 4)
-        if grazing.any():
-            N[grazing] = local_windows.tangent_fit(P, valid, N, grazing,
-                                                   np.clip(half[grazing], 2, local_windows.TANGENT_MAX))
-            Pf[grazing] = P[grazing]  # the inverse depth's value is what bends there: keep the measured point
-    parameters = None if plane is None else _plane_parameters(P, Pf, N, valid, cam, rays, model, floor, plane[1])
-    return FittedSurface(P=Pf, N=N, sd_rad=sd, half_width=half, model=model,
-                         kind="local" if plane is None else "plane", parameters=parameters)
+    view = -rel / np.maximum(dist, 1e-300)[..., None]
+    # where the inverse depth bends towards a silhouette's singularity: grazing, and near the silhouette
+    # for the window the pixel took
+    edge = distance_transform_cdt(valid, metric="chessboard")
+    grazing = done & (np.sum(np.nan_to_num(N) * view, axis=-1) < GRAZING) & (edge <= 2 * np.abs(half) + 4)
+    if grazing.any():
+        N[grazing] = local_windows.tangent_fit(P, valid, N, grazing,
+                                               np.clip(half[grazing], 2, local_windows.TANGENT_MAX))
+        Pf[grazing] = P[grazing]  # the inverse depth's value is what bends there: keep the measured point
+    return FittedSurface(P=Pf, N=N, sd_rad=sd, half_width=half, model=model, kind="local")
+
+
+def _whole_plane(P: np.ndarray, valid: np.ndarray, cam: np.ndarray, rays: np.ndarray, model: RangeModel,
+                 floor: float, abc: np.ndarray, cov_abc: np.ndarray) -> FittedSurface:
+    """The whole plane :func:`~nearlight.estimator.whole_surface.one_plane` found (inverse-depth coefficients
+    ``abc`` and their covariance): fitted to the points in space, each normal's s.d. that of the plane's.
+
+    The pixel-grid fit's plane ``m₀ = M⁻ᵀ Π abc`` (see :func:`_plane_parameters`) weighs the points
+    (:func:`~nearlight.estimator.whole_surface.plane_in_space`); one plane has one normal, so its s.d. is the
+    same at every pixel: the angle of the normal ``m/|m|`` under ``C_m`` (the range fit's, the staircase's
+    included), ``√tr(Π⊥ C_m Π⊥)/|m|`` with ``Π⊥ = I − n nᵀ``.
+    """
+    T = np.linalg.inv(pinhole_matrix(rays)).T[:, [2, 0, 1]]  # M⁻ᵀ Π: [a, b, c'] -> m
+    m0 = T @ abc
+    Pf, N = whole_surface.plane_in_space(P, valid, cam, m0 / np.linalg.norm(m0), rays, model, floor)
+    parameters = _plane_parameters(P, Pf, N, valid, cam, rays, model, floor, T @ cov_abc @ T.T)
+    sd = np.full(valid.shape, np.nan)
+    if parameters is not None:
+        m = parameters.g
+        across = np.eye(3) - np.outer(m, m) / (m @ m)
+        sd[valid] = np.sqrt(max(float(np.trace(across @ parameters.cov @ across)), 0.0)) / np.linalg.norm(m)
+    return FittedSurface(P=Pf, N=N, sd_rad=sd, half_width=np.where(valid, -1, 0), model=model, kind="plane",
+                         parameters=parameters)
 
 
 def _plane_parameters(P: np.ndarray, Pf: np.ndarray, N: np.ndarray, valid: np.ndarray, cam: np.ndarray,
-                      rays: np.ndarray, model: RangeModel, floor: float, cov_abc: np.ndarray
+                      rays: np.ndarray, model: RangeModel, floor: float, cov_m: np.ndarray
                       ) -> SurfaceParameters | None:
     """The whole plane as ``m·(X − cam) = 1`` with its covariance.
 
@@ -209,24 +212,23 @@ def _plane_parameters(P: np.ndarray, Pf: np.ndarray, N: np.ndarray, valid: np.nd
     coefficients: with ``R = M·[c, r, 1]`` (``R·axis = 1``, :func:`pinhole_matrix`), a
     point ``cam + z R`` of the plane has inverse depth ``f = 1/z = m·R``, so
     ``f = a + b c + c' r`` has ``[b, c', a] = Mᵀ m``: ``m = M⁻ᵀ Π [a, b, c']`` (``Π``
-    the reordering) and ``C_m = M⁻ᵀ Π C Πᵀ M⁻¹``. On a quantised range, that
+    the reordering) and ``C_m = M⁻ᵀ Π C Πᵀ M⁻¹`` (``cov_m``, from :func:`_whole_plane`). On a quantised range, that
     plus the staircase's simulated one
     (:func:`~nearlight.estimator.whole_surface.staircase_cov`, for the fit of
     the points in space as ``plane_in_space`` makes it).
     """
-    on = valid & np.all(np.isfinite(Pf), axis=-1) & np.all(np.isfinite(N), axis=-1)
+    on = valid & np.isfinite(Pf[..., 0])  # the normal is one for all; a point is NaN where its ray is parallel
     if not on.any():
         return None
     i, j = np.argwhere(on)[0]
     n = N[i, j]
     m = n / float(n @ (Pf[i, j] - cam))
-    T = np.linalg.inv(pinhole_matrix(rays)).T[:, [2, 0, 1]]  # M⁻ᵀ Π: [a, b, c'] -> m
-    cov = T @ cov_abc @ T.T
+    cov = cov_m
     if model.quantum_m > 0:
         u = whole_surface.directions(P[on], cam)
         t = 1.0 / (u @ m)  # the fitted plane along each pixel's ray
-        w = 1.0 / whole_surface.normal_noise(np.broadcast_to(n, u.shape), u, rays, model, floor)
         along = whole_surface.axis_cosine(u, rays, model)
+        w = 1.0 / whole_surface.normal_noise(np.broadcast_to(n, u.shape), u, along, model, floor)
         # the weighted distance to the plane w (m·(X − cam) − 1)/|m|: its Jacobian in m, and its change per metre
         # of reading error along the axis (the point moves by e/along along its ray)
         J = (w * t)[:, None] * u / np.linalg.norm(m)

@@ -42,8 +42,14 @@ STAIRCASE_DRAWS = 32
 
 #: Gauss–Newton iterations of the sphere's geometric fit (from the algebraic one: converged in 2-3) ...
 SPHERE_ITERATIONS = 5
-#: ... stopped early when every step is below this many of its parameter's standard deviations.
-SPHERE_STEP_SD = 1e-4
+#: ... stopped early when every step is below this many of its parameter's standard deviations: the weights follow
+#: the sphere, so each step is a fraction of the last (measured on the analytic sphere at 640×480: 1/8 to 1/40),
+#: and after such a step the fit is within about a hundredth of a standard deviation of its optimum.
+SPHERE_STEP_SD = 0.1
+#: The sphere's Gauss–Newton runs on about this many of the points first (every k-th), then on all from there
+#: (one or two steps: the subsample's optimum is a few of its own s.d. from the whole's). Each pass over the
+#: ~10⁵ points of a 640×480 sphere costs ~25 ms; from the algebraic start all six did.
+SPHERE_SUBSAMPLE = 10000
 
 
 
@@ -80,48 +86,41 @@ def towards(N: np.ndarray, r: np.ndarray) -> np.ndarray:
     return np.where((np.sum(N * r, axis=1) > 0)[:, None], -N, N)
 
 
-def normal_noise(n: np.ndarray, r: np.ndarray, rays: np.ndarray, model: RangeModel, floor: float) -> np.ndarray:
+def normal_noise(n: np.ndarray, r: np.ndarray, along: np.ndarray, model: RangeModel, floor: float) -> np.ndarray:
     """Standard deviation of the range error along each normal ``n`` (m, 3), metres, for points on rays ``r``.
 
     The error moves a point along its ray: by ``σ`` (along the ray) or by
-    ``σ / (r·axis)`` (along ``z``), of which ``|n·r|`` is across the surface;
-    with the float32 floor in quadrature.
+    ``σ / (r·axis)`` (along ``z``; ``along`` (m,) is :func:`axis_cosine` of ``r``), of which ``|n·r|`` is
+    across the surface; with the float32 floor in quadrature.
     """
-    return np.hypot(model.equivalent_sigma_m * np.abs(np.sum(n * r, axis=1)) / axis_cosine(r, rays, model), floor)
+    return np.hypot(model.equivalent_sigma_m * np.abs(np.sum(n * r, axis=1)) / along, floor)
 
 
-def plane_in_space(P: np.ndarray, valid: np.ndarray, cam: np.ndarray, N: np.ndarray, rays: np.ndarray,
+def plane_in_space(P: np.ndarray, valid: np.ndarray, cam: np.ndarray, n0: np.ndarray, rays: np.ndarray,
                    model: RangeModel, floor: float) -> tuple[np.ndarray, np.ndarray]:
-    """The whole plane's points and normals, fitted to the points in space (no camera model).
+    """The whole plane's points and normals (towards the camera), fitted to the points in space (no camera model).
 
     :func:`one_plane` decides that one plane fits (its inverse depth affine
     over the pixels); the plane itself is fitted to ``P``: the weighted
     principal axes of the points, each weighted by the range noise across
-    the plane (:func:`normal_noise`, with the pixel-grid fit's normals
-    ``N``), and each point moved along its own direction from the camera
+    the plane (:func:`normal_noise`, with the pixel-grid fit's unit normal
+    ``n0`` (3,)), and each point moved along its own direction from the camera
     onto it. A camera whose calibration is off moves its rays, not the
     points the range measured.
     """
     X = P[valid]
     u = directions(X, cam)
-    w = 1.0 / normal_noise(N[valid], u, rays, model, floor) ** 2
-    centroid, n = weighted_plane(X, w)
+    w = 1.0 / normal_noise(np.broadcast_to(n0, u.shape), u, axis_cosine(u, rays, model), model, floor) ** 2
+    centroid = w @ X / w.sum()
     Q = X - centroid
-    along = u @ n
+    n = np.linalg.eigh((w[:, None] * Q).T @ Q)[1][:, 0]  # the weighted scatter's least principal axis
+    n = n if n @ (cam - centroid) > 0 else -n
     Pf = np.full(P.shape, np.nan)
     Nf = np.full(P.shape, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
-        Pf[valid] = X - ((Q @ n) / along)[:, None] * u
+        Pf[valid] = X - ((Q @ n) / (u @ n))[:, None] * u
     Nf[valid] = n
     return Pf, Nf
-
-
-def weighted_plane(X: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The plane through points ``X`` (n, 3) with weights ``w`` (n,): its weighted centroid and unit normal (the
-    scatter's least principal axis)."""
-    centroid = (w[:, None] * X).sum(0) / w.sum()
-    Q = X - centroid
-    return centroid, np.linalg.eigh((w[:, None] * Q).T @ Q)[1][:, 0]
 
 
 def wider(cov: np.ndarray, other: np.ndarray) -> np.ndarray:
@@ -173,7 +172,7 @@ def staircase_cov(J: np.ndarray, sens: np.ndarray, depth: np.ndarray, model: Ran
     ndarray, shape (k, k)
         ``mean Δg Δgᵀ`` over the draws (the simulated bias included).
     """
-    response = np.linalg.solve(J.T @ J, J.T * sens)  # (k, n): Δg per metre of error at each pixel, negated
+    response = np.linalg.inv(J.T @ J) @ (J.T * sens)  # (k, n): Δg per metre of error at each pixel, negated
     rng = np.random.default_rng(seed)
     draws = np.empty((STAIRCASE_DRAWS, J.shape[1]))
     for b in range(STAIRCASE_DRAWS):
@@ -206,24 +205,28 @@ def one_plane(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, cc: np.ndarray, 
         return None
     x, y, w = cc[valid], rr[valid], 1.0 / sf[valid]
     x0, y0 = x.mean(), y.mean()
-    A = np.stack([np.ones_like(x), x - x0, y - y0], axis=1) * w[:, None]
+    A = np.stack([w, (x - x0) * w, (y - y0) * w], axis=1)
     b = f[valid] * w
-    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    # normal equations (A's columns are centred: AᵀA's condition number is about the pixel grid's squared, ~1e5 at
+    # 640×480, far inside float64)
+    AtA, Atb = A.T @ A, A.T @ b
+    coef = np.linalg.solve(AtA, Atb)
     rms = float(np.sqrt(np.mean((A @ coef - b) ** 2)))
     if not rms <= PLANE_FIT:
         return None
-    cov = np.linalg.inv(A.T @ A) * max(rms, 1.0) ** 2
+    cov = np.linalg.inv(AtA) * max(rms, 1.0) ** 2
+    # each spatial block's normal equations by weighted bincounts (not a boolean mask per block)
     block = jackknife_blocks(y, x, valid.shape)
-    present = np.unique(block)
-    if present.size >= 4:
-        # each block's normal equations by one sort and a segmented sum (not a boolean mask per block)
-        order = np.argsort(block, kind="stable")
-        starts = np.searchsorted(block[order], present)
-        As, bs = A[order], b[order]
-        AtAk = np.add.reduceat(As[:, :, None] * As[:, None, :], starts, axis=0)
-        Atbk = np.add.reduceat(As * bs[:, None], starts, axis=0)
-        leave = np.linalg.solve(AtAk.sum(0) - AtAk, (Atbk.sum(0) - Atbk)[..., None])[..., 0]
-        g = present.size
+    blocks = JACKKNIFE_BLOCKS**2
+    AtAk, Atbk = np.empty((blocks, 3, 3)), np.empty((blocks, 3))
+    for i in range(3):
+        Atbk[:, i] = np.bincount(block, A[:, i] * b, blocks)
+        for j in range(i, 3):
+            AtAk[:, i, j] = AtAk[:, j, i] = np.bincount(block, A[:, i] * A[:, j], blocks)
+    present = np.bincount(block, minlength=blocks) > 0
+    if present.sum() >= 4:
+        leave = np.linalg.solve(AtA - AtAk[present], (Atb - Atbk[present])[..., None])[..., 0]
+        g = int(present.sum())
         jack = (g - 1) / g * (leave - leave.mean(axis=0)).T @ (leave - leave.mean(axis=0))
         cov = wider(cov, jack)
     shift = np.array([[1.0, -x0, -y0], [0, 1, 0], [0, 0, 1]])
@@ -312,7 +315,10 @@ def one_sphere(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndarr
     R = float(np.sqrt(max(sol[3] + c @ c, 0.0)))
     if not R > 0:
         return None
-    c, R, n, w, res = _sphere_gauss_newton(Q, r, cam - ref, rays, model, floor, c, R, SPHERE_ITERATIONS)
+    along = axis_cosine(r, rays, model)
+    sub = slice(None, None, max(1, len(Q) // SPHERE_SUBSAMPLE))
+    c, R = _sphere_gauss_newton(Q[sub], r[sub], along[sub], cam - ref, model, floor, c, R, SPHERE_ITERATIONS)[:2]
+    c, R, n, w, res = _sphere_gauss_newton(Q, r, along, cam - ref, model, floor, c, R, SPHERE_ITERATIONS)
     scale = 1.4826 * float(np.median(np.abs(res)))
     if not scale <= PLANE_FIT:
         return None
@@ -321,37 +327,52 @@ def one_sphere(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndarr
     centre = c + ref
     near = np.linalg.norm(X - cam, axis=1)
     g = np.concatenate([centre, [R]])
-    if model.quantum_m > 0:
-        t = on_rays("sphere", g, cam, r, near)[0]
-        hit = np.isfinite(t)
-        along = axis_cosine(r[hit], rays, model)
-        # a reading's error e along the axis moves the point by e/along along its ray: its distance from the
-        # centre by (n·r) e/along
-        cov = cov + staircase_cov(J[hit], (w * np.sum(n * r, axis=1))[hit] / along, t[hit] * along, model)
     t, N = on_rays("sphere", g, cam, r, near)
     miss = ~np.isfinite(t)  # a ray grazing the silhouette: its measured point
+    if model.quantum_m > 0:
+        hit = ~miss
+        # a reading's error e along the axis moves the point by e/along along its ray: its distance from the
+        # centre by (n·r) e/along
+        cov = cov + staircase_cov(J[hit], (w * np.sum(n * r, axis=1))[hit] / along[hit], t[hit] * along[hit], model)
     t[miss], N[miss] = near[miss], towards(n[miss], r[miss])
-    vals, vecs = np.linalg.eigh(cov)
-    turn2 = np.zeros(len(t))
-    for k in range(4):
-        dv = vecs[:, k] * np.sqrt(max(vals[k], 0.0))
-        tk, Nk = on_rays("sphere", g + dv, cam, r, near)
-        Nk[~np.isfinite(tk)] = N[~np.isfinite(tk)]
-        turn2 += np.arctan2(np.linalg.norm(np.cross(Nk, N), axis=1), np.sum(Nk * N, axis=1)) ** 2
     Ps = np.full(P.shape, np.nan)
     Ns = np.full(P.shape, np.nan)
     sds = np.full(valid.shape, np.nan)
-    Ps[valid], Ns[valid], sds[valid] = cam + t[:, None] * r, towards(N, r), np.sqrt(turn2)
+    on = cam + t[:, None] * r
+    Ps[valid], Ns[valid], sds[valid] = on, N, np.where(miss, np.nan, sphere_turn(on, r, g, cov))
     return Ps, Ns, sds, SurfaceParameters("sphere", g, cov)
 
 
-def _sphere_gauss_newton(Q: np.ndarray, r: np.ndarray, cam: np.ndarray, rays: np.ndarray, model: RangeModel,
+def sphere_turn(X: np.ndarray, r: np.ndarray, g: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Standard deviation of the angle (radians) by which the normal of the sphere ``g = [c, R]`` at the points
+    ``X`` (n, 3) where the unit rays ``r`` meet it turns under the covariance ``cov`` (4, 4) of ``g``: linearised.
+
+    A point ``X = cam + t r`` on ``|X − c| = R`` moves along its ray by
+    ``dt = (N·dc + dR)/(N·r)`` (``N = (X − c)/R``, outward) and its normal by ``dN = (r dt − dc − N dR)/R``, at
+    right angles to ``N`` (so ``|dN|`` is the angle); summed in quadrature over the covariance's four principal
+    axes (not finite where the ray grazes, ``N·r = 0``).
+    """
+    R = float(g[3])
+    N = (X - g[:3]) / R
+    vals, vecs = np.linalg.eigh(cov)
+    G = vecs * np.sqrt(np.maximum(vals, 0.0))  # columns: one s.d. along each principal axis
+    dc, dR = G[:3], G[3]
+    Nc, rc = N @ dc, r @ dc  # (n, 4)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dt = (Nc + dR) / np.sum(N * r, axis=1)[:, None]
+    rN = np.sum(r * N, axis=1)[:, None]
+    # |r dt − dc − N dR|² expanded (|r| = |N| = 1)
+    sq = dt**2 - 2 * dt * rc - 2 * dt * dR * rN + np.sum(dc * dc, axis=0) + 2 * dR * Nc + dR**2
+    return np.sqrt(np.maximum(sq.sum(axis=1), 0.0)) / R
+
+
+def _sphere_gauss_newton(Q: np.ndarray, r: np.ndarray, along: np.ndarray, cam: np.ndarray, model: RangeModel,
                          floor: float, c: np.ndarray, R: float, iterations: int
                          ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`one_sphere`'s weighted Gauss–Newton from ``(c, R)``, all relative to one reference point.
 
     ``Q`` (n, 3) the points and ``cam`` the camera, less the reference; ``r`` the points' unit directions from
-    the camera. Returns ``(c, R, n, w, res)``: the sphere, and at it each point's outward normal, weight and
+    the camera, ``along`` their :func:`axis_cosine`. Returns ``(c, R, n, w, res)``: the sphere, and at it each point's outward normal, weight and
     weighted residual.
     """
     for it in range(iterations + 1):
@@ -361,7 +382,7 @@ def _sphere_gauss_newton(Q: np.ndarray, r: np.ndarray, cam: np.ndarray, rays: np
         # centre: that one leans with the point's own error (see one_sphere)
         n = on_rays("sphere", np.concatenate([c, [R]]), cam, r)[1]
         n = np.where(np.isfinite(n), n, d / dist[:, None])  # outward on the near side; a miss keeps its point's
-        w = 1.0 / normal_noise(n, r, rays, model, floor)
+        w = 1.0 / normal_noise(n, r, along, model, floor)
         res = (dist - R) * w
         if it == iterations:
             break
@@ -468,7 +489,7 @@ def one_quadric(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndar
     grad = np.stack([D @ (GRADIENT[i] @ a) for i in range(3)], axis=1)
     n = grad / np.maximum(np.linalg.norm(grad, axis=1, keepdims=True), 1e-300)
     dist = f / np.maximum(np.linalg.norm(grad, axis=1), 1e-300) * scale  # Sampson distance, metres
-    sigma_n = normal_noise(n, r, rays, model, floor)
+    sigma_n = normal_noise(n, r, axis_cosine(r, rays, model), model, floor)
     # a robust scale (1.4826·median|d/σ|: 1 for Gaussian residuals) rather than the RMS: near a silhouette σ·|n·r|
     # is tiny, and there the first-order Sampson distance is least exact
     if not 1.4826 * np.median(np.abs(dist / sigma_n)) <= PLANE_FIT:
