@@ -174,9 +174,18 @@ def _robust_fit(
         def jac(x: np.ndarray) -> np.ndarray:
             return central_jacobian(fun, x, step)
 
+    last: dict[str, np.ndarray] = {}
+
+    def kept(x: np.ndarray) -> np.ndarray:
+        # the solver's last Jacobian is at its answer (it evaluates one after every accepted step): kept (a copy,
+        # whatever the solver does with its own) for the covariance, not computed again
+        J = jac(x)
+        last["x"], last["J"] = np.array(x, dtype=float), np.array(J, dtype=float)
+        return J
+
     def solve(x: np.ndarray, scale: float) -> object:
         return least_squares(
-            fun, x, jac=jac, bounds=(lower, upper), loss=loss, f_scale=scale,
+            fun, x, jac=kept, bounds=(lower, upper), loss=loss, f_scale=scale,
             x_scale=np.asarray(typical, dtype=float), method="trf", xtol=tol, ftol=tol, gtol=tol,
             max_nfev=max_nfev,
         )
@@ -193,7 +202,7 @@ def _robust_fit(
             s = max(3.0 * _mad(res.fun), floor)
         res = solve(res.x if res is not None else np.asarray(x0, dtype=float), s)
         nfev += res.nfev
-    J = jac(res.x)
+    J = last["J"] if "x" in last and np.array_equal(last["x"], res.x) else jac(res.x)
     rho = res.fun
     n, p = J.shape
     if loss == "linear":

@@ -328,22 +328,31 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
     first = min(shorts, key=lambda k: shorts[k][1])
     s2 = shorts[first][1] / max(3 * len(coarse.P) - 7, 1)
     evidence = {k: (v[1] - shorts[first][1]) / s2 for k, v in shorts.items()}
+    joint, why = _surface_fit(obs, surface)
+    dof = max(3 * len(model.P) - 7, 1)
+    refitted = [k for k, v in evidence.items() if v < REFIT_EVIDENCE]
     fits = {}
-    for family in (k for k, v in evidence.items() if v < REFIT_EVIDENCE):
+    for family in refitted:
         m = model.with_lobe(family)
         x0 = shorts[family][0]
-        fits[family] = final_fit(m, x0, obs.scale, loss=loss, f_scale=f_scale, floor=floor)
-        fits[family]["chi2"] = _chi2(m, fits[family]["x"])
+        if joint and len(refitted) == 1:
+            # one lobe to fit: the joint fit is the final fit, from the short fit as the image-only one would start
+            # (the prior's scale from the start's residuals over every pixel: within ~0.1 % of the fit's)
+            fits[family] = joint_fit(m, obs.geometry.parameters, x0, obs.scale, loss=loss, f_scale=f_scale,
+                                     floor=floor, scale=float(np.sqrt(_chi2(m, x0) / dof)))
+        else:
+            fits[family] = final_fit(m, x0, obs.scale, loss=loss, f_scale=f_scale, floor=floor)
+            fits[family]["chi2"] = _chi2(m, fits[family]["x"])
     chosen = min(fits, key=lambda k: fits[k]["chi2"])
     fit = fits[chosen]
-    s2_all = fit["chi2"] / max(3 * len(model.P) - 7, 1)
+    s2_all = fit["chi2"] / dof
     refit = {k: (v["chi2"] - fit["chi2"]) / s2_all for k, v in fits.items()}
     evidence_specular = _specular_evidence(_chi2_none(model), fit["chi2"], s2_all)
-    joint, why = _surface_fit(obs, surface)
     refined = None
     if joint:
-        fit = joint_fit(model.with_lobe(chosen), obs.geometry.parameters, fit["x"], obs.scale, loss=loss,
-                        f_scale=f_scale, floor=floor, scale=float(np.sqrt(s2_all)))
+        if "prior_chi2" not in fit:  # several lobes fitted on the range's surface: the chosen one refined with it
+            fit = joint_fit(model.with_lobe(chosen), obs.geometry.parameters, fit["x"], obs.scale, loss=loss,
+                            f_scale=f_scale, floor=floor, scale=float(np.sqrt(s2_all)))
         g = fit["x"][7:]
         refined = {"kind": obs.geometry.parameters.kind, "g": g, "covariance": fit["cov"][7:, 7:],
                    "range_fit_g": obs.geometry.parameters.g, "range_chi2": fit["prior_chi2"]}

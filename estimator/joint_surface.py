@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..physics.reflectance import normalize
 from .fitting import robust_fit
 from .observation import Observation
 from .pointlamp import FINAL_TOL, PointLampModel, lamp_bounds, typical_scale
@@ -90,7 +89,7 @@ class JointModel:
             t, n = on_rays(self.surface.kind, g, cam, self.directions, self.near)
             miss = ~np.isfinite(t)  # a grazing ray the moved sphere misses: the pixel stays where it was
             P = np.where(miss[:, None], self.base.P, cam + t[:, None] * self.directions)
-            N = normalize(np.where(miss[:, None], self.base.N, n))
+            N = np.where(miss[:, None], self.base.N, n)  # unit: on_rays's and the base's
             b = self.base
             found = PointLampModel(P, N, b.camera, b.observed, lobe=b.lobe, std=b.std)
             if len(self._models) > self.k + 2:

@@ -93,7 +93,7 @@ def normal_noise(n: np.ndarray, r: np.ndarray, along: np.ndarray, model: RangeMo
     ``σ / (r·axis)`` (along ``z``; ``along`` (m,) is :func:`axis_cosine` of ``r``), of which ``|n·r|`` is
     across the surface; with the float32 floor in quadrature.
     """
-    return np.hypot(model.equivalent_sigma_m * np.abs(np.sum(n * r, axis=1)) / along, floor)
+    return np.hypot(model.equivalent_sigma_m * np.abs(np.einsum("ij,ij->i", n, r)) / along, floor)
 
 
 def plane_in_space(P: np.ndarray, valid: np.ndarray, cam: np.ndarray, n0: np.ndarray, rays: np.ndarray,
@@ -277,7 +277,9 @@ def on_rays(kind: str, g: np.ndarray, origin: np.ndarray, rays: np.ndarray, near
             root = np.sqrt(np.where(disc >= 0, disc, np.nan))
         t = -b - root if near is None else np.where(np.abs(-b - root - near) <= np.abs(-b + root - near),
                                                     -b - root, -b + root)
-        n = (origin + t[:, None] * rays - c) / R
+        # the outward normal (origin − c + t r)/R faces along the ray (n·r = (b + t)/R > 0) at the far root: turned
+        n = ((origin - c) + t[:, None] * rays) * (np.where(b + t > 0, -1.0, 1.0) / R)[:, None]
+        return t, n
     return t, n * np.where(np.einsum("ij,ij->i", n, rays) > 0, -1.0, 1.0)[:, None]
 
 
@@ -310,7 +312,8 @@ def one_sphere(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndarr
     r = directions(X, cam)
     ref = X.mean(axis=0)
     Q = X - ref
-    sol = np.linalg.lstsq(np.column_stack([2 * Q, np.ones(len(Q))]), np.sum(Q * Q, axis=1), rcond=None)[0]
+    A = np.column_stack([2 * Q, np.ones(len(Q))])  # centred: its normal equations are well conditioned
+    sol = np.linalg.solve(A.T @ A, A.T @ np.einsum("ij,ij->i", Q, Q))
     c = sol[:3]
     R = float(np.sqrt(max(sol[3] + c @ c, 0.0)))
     if not R > 0:
@@ -377,11 +380,12 @@ def _sphere_gauss_newton(Q: np.ndarray, r: np.ndarray, along: np.ndarray, cam: n
     """
     for it in range(iterations + 1):
         d = Q - c
-        dist = np.linalg.norm(d, axis=1)
+        dist = np.sqrt(np.einsum("ij,ij->i", d, d))
         # the normal where each pixel's ray meets the current sphere, not the noisy point's direction from its
         # centre: that one leans with the point's own error (see one_sphere)
         n = on_rays("sphere", np.concatenate([c, [R]]), cam, r)[1]
-        n = np.where(np.isfinite(n), n, d / dist[:, None])  # outward on the near side; a miss keeps its point's
+        miss = ~np.isfinite(n[:, 0])
+        n[miss] = d[miss] / dist[miss, None]  # outward on the near side; a miss keeps its point's
         w = 1.0 / normal_noise(n, r, along, model, floor)
         res = (dist - R) * w
         if it == iterations:
