@@ -25,9 +25,16 @@ the fit is the one that stacks every range pixel beside every image pixel,
 as the bound does (:mod:`nearlight.evaluation.scoring.range_bound`), at the
 cost of a few more image evaluations. The covariance of ``(lamp, colour,
 roughness, g)`` is the robust fit's sandwich over both; its lamp block now
-holds the geometry's share. ``C_g`` is the fit's own: the plane's the larger
-of the independent-noise one and a block jackknife (a staircase's errors are
-correlated over a terrace), the sphere's its weighted Gauss–Newton's.
+holds the geometry's share. ``C_g`` is the range fit's own
+(:mod:`~nearlight.estimator.whole_surface`): the plane's independent-noise
+one (guarded by a block jackknife when the range states white noise), the
+sphere's its weighted Gauss–Newton's; on a quantised range either plus the
+staircase's simulated share (``staircase_cov``: a staircase's errors are one
+sawtooth over each terrace).
+
+With one lobe to fit this is ``full``'s final fit, from the short fit as the
+image-only final fit would start; with several, those choose the lobe and
+the chosen one is refined from its fit.
 
 A quadric and local windows keep their surface as given (their parameters
 are not refined, yet); so does a capture whose range states no error.

@@ -139,7 +139,7 @@ def fit_surface(P: np.ndarray, camera_position: np.ndarray, rays: np.ndarray, *,
     sf = sz / zs**2  # the inverse depth's standard deviation
     rr, cc = np.meshgrid(np.arange(H) + 0.5, np.arange(W) + 0.5, indexing="ij")
 
-    plane = whole_surface.one_plane(f, sf, valid, cc, rr)
+    plane = whole_surface.one_plane(f, sf, valid, cc, rr, jackknife=not model.quantum_m > 0)
     if plane is not None:
         return _whole_plane(P, valid, cam, rays, model, floor, *plane)
     # the simplest family that fits within the noise: a sphere's 4 parameters before a quadric's 9

@@ -190,16 +190,20 @@ def axis_cosine(r: np.ndarray, rays: np.ndarray, model: RangeModel) -> np.ndarra
     return np.ones(len(r))
 
 
-def one_plane(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, cc: np.ndarray, rr: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray] | None:
+def one_plane(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, cc: np.ndarray, rr: np.ndarray, *,
+              jackknife: bool = True) -> tuple[np.ndarray, np.ndarray] | None:
     """``(coefficients [a, b, c] of f ≈ a + b·c + c·r, their covariance)`` when one plane fits every valid pixel
     within :data:`PLANE_FIT` × the noise, else None.
 
-    The covariance is the larger of the independent-noise one and a
-    delete-one-block jackknife over :data:`JACKKNIFE_BLOCKS`² spatial blocks:
-    a staircase's errors are correlated over a terrace, which the first
-    alone would take for independent noise (on a 1-mm z-quantised board,
-    errors of 5 to 17 standard deviations).
+    The covariance is the independent-noise one or, with ``jackknife``, the
+    larger of that and a delete-one-block jackknife over
+    :data:`JACKKNIFE_BLOCKS`² spatial blocks: a guard against errors
+    correlated over the surface that the range's model does not state
+    (conservative: on white noise the larger of two estimates of one
+    variance, the plane's normal s.d. about 1.2× its error's, 40 seeds). A
+    quantised range states its correlation (a staircase's errors are one
+    sawtooth over each terrace) and is covered by :func:`staircase_cov`
+    instead (the jackknife as well counted it twice).
     """
     if valid.sum() < 20:
         return None
@@ -215,20 +219,21 @@ def one_plane(f: np.ndarray, sf: np.ndarray, valid: np.ndarray, cc: np.ndarray, 
     if not rms <= PLANE_FIT:
         return None
     cov = np.linalg.inv(AtA) * max(rms, 1.0) ** 2
-    # each spatial block's normal equations by weighted bincounts (not a boolean mask per block)
-    block = jackknife_blocks(y, x, valid.shape)
-    blocks = JACKKNIFE_BLOCKS**2
-    AtAk, Atbk = np.empty((blocks, 3, 3)), np.empty((blocks, 3))
-    for i in range(3):
-        Atbk[:, i] = np.bincount(block, A[:, i] * b, blocks)
-        for j in range(i, 3):
-            AtAk[:, i, j] = AtAk[:, j, i] = np.bincount(block, A[:, i] * A[:, j], blocks)
-    present = np.bincount(block, minlength=blocks) > 0
-    if present.sum() >= 4:
-        leave = np.linalg.solve(AtA - AtAk[present], (Atb - Atbk[present])[..., None])[..., 0]
-        g = int(present.sum())
-        jack = (g - 1) / g * (leave - leave.mean(axis=0)).T @ (leave - leave.mean(axis=0))
-        cov = wider(cov, jack)
+    if jackknife:
+        # each spatial block's normal equations by weighted bincounts (not a boolean mask per block)
+        block = jackknife_blocks(y, x, valid.shape)
+        blocks = JACKKNIFE_BLOCKS**2
+        AtAk, Atbk = np.empty((blocks, 3, 3)), np.empty((blocks, 3))
+        for i in range(3):
+            Atbk[:, i] = np.bincount(block, A[:, i] * b, blocks)
+            for j in range(i, 3):
+                AtAk[:, i, j] = AtAk[:, j, i] = np.bincount(block, A[:, i] * A[:, j], blocks)
+        present = np.bincount(block, minlength=blocks) > 0
+        if present.sum() >= 4:
+            leave = np.linalg.solve(AtA - AtAk[present], (Atb - Atbk[present])[..., None])[..., 0]
+            g = int(present.sum())
+            jack = (g - 1) / g * (leave - leave.mean(axis=0)).T @ (leave - leave.mean(axis=0))
+            cov = wider(cov, jack)
     shift = np.array([[1.0, -x0, -y0], [0, 1, 0], [0, 0, 1]])
     return shift @ coef, shift @ cov @ shift.T
 

@@ -40,9 +40,9 @@ from typing import Any
 
 import numpy as np
 
+from ...estimator.fitting import central_jacobian
 from ...estimator.geometry import capture_rays
 from ...estimator.whole_surface import on_rays
-from ...estimator.fitting import central_jacobian
 from ...physics.reflectance import specular_radiance
 from .crlb import bound_columns, specular_variance, truth_parameters
 

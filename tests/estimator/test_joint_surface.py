@@ -17,7 +17,8 @@ import pytest
 from nearlight.estimator.fitting import robust_fit
 from nearlight.estimator.full import full_estimate
 from nearlight.estimator.geometry import capture_rays, surface_geometry
-from nearlight.estimator.whole_surface import on_rays
+from nearlight.estimator import full as full_module
+from nearlight.estimator.whole_surface import on_rays, sphere_turn
 from nearlight.generator.analytic import DEFAULT_LAMP_POSITION
 from nearlight.generator.noise import add_camera_noise
 from nearlight.generator.range_sensor import perturb_range
@@ -49,6 +50,29 @@ def test_on_rays_meets_plane_and_sphere_with_normals_towards_the_origin():
     assert np.all(np.sum(n[hit] * rays[hit], axis=1) < 0)  # the near side faces the origin
     t_far, n_far = on_rays("sphere", g, o, rays, near=np.full(len(rays), 2.0))
     assert np.all(t_far[hit] > t[hit]) and np.all(np.sum(n_far[hit] * rays[hit], axis=1) < 0)
+
+
+def test_sphere_turn_is_the_normals_turn_for_a_small_change():
+    """The linearised s.d. of the sphere's normals (:func:`sphere_turn`) against the exact turn of ``on_rays``'s
+    normals when ``g`` moves by 1e-3 of each principal axis of its covariance, summed in quadrature and scaled back
+    (the angle is linear in so small a change: its second order is ~1e-3 of it). Rays within ~0.4 rad of the
+    sphere's centre, off its silhouette (``N·r`` ≤ −0.2)."""
+    rng = np.random.default_rng(3)
+    o = np.zeros(3)
+    rays = rng.normal(size=(200, 3)) * [0.1, 0.1, 1.0] + [0, 0, 5.0]
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    g = np.array([0.02, -0.01, 1.0, 0.3])
+    A = rng.normal(size=(4, 4)) * 1e-3
+    cov = A @ A.T
+    t, n = on_rays("sphere", g, o, rays)
+    keep = np.isfinite(t) & (np.sum(n * rays, axis=1) <= -0.2)
+    rays, t, n = rays[keep], t[keep], n[keep]
+    vals, vecs = np.linalg.eigh(cov)
+    turn2 = np.zeros(len(t))
+    for k in range(4):
+        nk = on_rays("sphere", g + 1e-3 * vecs[:, k] * np.sqrt(vals[k]), o, rays)[1]
+        turn2 += (np.arctan2(np.linalg.norm(np.cross(nk, n), axis=1), np.sum(nk * n, axis=1)) / 1e-3) ** 2
+    np.testing.assert_allclose(sphere_turn(o + t[:, None] * rays, rays, g, cov), np.sqrt(turn2), rtol=5e-3)
 
 
 def test_the_sandwich_counts_prior_terms_by_their_expected_square():
@@ -97,6 +121,35 @@ def test_auto_refines_the_surface_only_for_a_range_with_error(board):
                                            "the stated ellipsoid)"]
     given = full_estimate(noisy.replace(N=board.N), surface="joint").stages["full"]  # the capture's own normals
     assert given["surface_fit"] == "fixed" and given["surface_fit_reason"] == "the capture's own normals"
+
+
+def test_with_one_lobe_the_joint_fit_is_the_final_fit(board, monkeypatch):
+    """A named lobe and the surface refined: the joint fit starts from the short fit and the image-only final fit
+    does not run (it did before, then the joint fit from it: the same optimum, at the cost of a second fit). With
+    two lobe families the image-only fits choose the lobe when both are refitted (their short fits' evidence
+    within ``REFIT_EVIDENCE``), else the joint fit is again the only final fit."""
+    cap = perturb_range(add_camera_noise(board, noise=LOW_NOISE, seed=0), sigma_m=1e-3, seed=0)
+    real = full_module.final_fit
+    calls = []
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(full_module, "final_fit", counted)
+    one = full_estimate(cap, lobe="torrance_sparrow")
+    assert one.stages["full"]["surface_fit"] == "joint" and not calls
+    fixed = full_estimate(cap, lobe="torrance_sparrow", surface="fixed")
+    assert len(calls) == 1
+    # the joint fit corrects the surface's share: within the joint ellipsoid's 3 s.d. of the truth
+    d = np.asarray(one.lamp_position, float) - DEFAULT_LAMP_POSITION
+    assert d @ np.linalg.solve(np.asarray(one.covariance, float)[:3, :3], d) < 14.2  # chi-square(3) 0.997
+    assert _error_m(fixed) > 0
+    calls.clear()
+    two = full_estimate(cap, lobe="torrance_sparrow+ward")
+    assert two.stages["full"]["surface_fit"] == "joint"
+    refitted = [k for k, v in two.stages["full"]["lobe_evidence"].items() if v < full_module.REFIT_EVIDENCE]
+    assert len(calls) == (len(refitted) if len(refitted) > 1 else 0)
 
 
 @pytest.mark.parametrize(("shape", "limit_m"), [("board", 1e-7), ("sphere", 2e-6)])
