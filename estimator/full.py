@@ -33,7 +33,7 @@ from ..errors import UserError
 from ..physics.reflectance import LOBES, peak_shape, roughness_for_ts_sigma, ts_sigma
 from .first_stage import ray_stage, stage_one
 from .fitting import LOSSES
-from .joint_surface import JOINT_MIN_RANGE_M, fixed_surface_warning, joint_fit
+from .joint_surface import fixed_surface_warning, joint_fit, split_refined, surface_fit_choice
 from .lobes import FAMILIES
 from .observation import THRESHOLD, Observation, observation_of
 from .options import Choice, Count, CountOrZero, Positive, forwards
@@ -100,21 +100,6 @@ def _specular_evidence(chi2_none: float, chi2_fit: float, s2: float) -> float:
     if s2 > 0:
         return gain / s2
     return float("inf") if gain > 0 else 0.0
-
-
-def _surface_fit(obs: Observation, surface: str) -> tuple[bool, str]:
-    """Whether ``full`` refines the surface with the lamp (``surface`` its option), and why, in a few words."""
-    geometry = obs.geometry
-    if surface == "fixed":
-        return False, "surface=fixed"
-    if geometry.parameters is None:
-        kind = geometry.summary.get("surface")
-        return False, ("the capture's own normals" if kind is None
-                       else f"the range fitted a {kind} surface, whose parameters are not refined")
-    sigma = geometry.range.equivalent_sigma_m
-    if surface == "auto" and not sigma > JOINT_MIN_RANGE_M:
-        return False, f"the range's error {sigma:.3g} m is below {JOINT_MIN_RANGE_M:g} m"
-    return True, f"one {geometry.parameters.kind} fitted to a range with error {sigma:.3g} m"
 
 
 def no_specular_warning(evidence: float) -> str | None:
@@ -285,7 +270,8 @@ def full_estimate(
     if lamps == 1:
         return one
     return several_estimate(capture, one, obs, lamps=lamps, lobe=lobe, noise=noise, loss=loss, f_scale=f_scale,
-                            max_pixels=max_pixels, saturation=saturation, n_starts=n_starts, separation=separation)
+                            max_pixels=max_pixels, saturation=saturation, n_starts=n_starts, separation=separation,
+                            surface=surface)
 
 
 def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale: float | None, max_pixels: int,
@@ -328,7 +314,7 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
     first = min(shorts, key=lambda k: shorts[k][1])
     s2 = shorts[first][1] / max(3 * len(coarse.P) - 7, 1)
     evidence = {k: (v[1] - shorts[first][1]) / s2 for k, v in shorts.items()}
-    joint, why = _surface_fit(obs, surface)
+    joint, why = surface_fit_choice(obs, surface)
     dof = max(3 * len(model.P) - 7, 1)
     refitted = [k for k, v in evidence.items() if v < REFIT_EVIDENCE]
     fits = {}
@@ -353,10 +339,7 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
         if "prior_chi2" not in fit:  # several lobes fitted on the range's surface: the chosen one refined with it
             fit = joint_fit(model.with_lobe(chosen), obs.geometry.parameters, fit["x"], obs.scale, loss=loss,
                             f_scale=f_scale, floor=floor, scale=float(np.sqrt(s2_all)))
-        g = fit["x"][7:]
-        refined = {"kind": obs.geometry.parameters.kind, "g": g, "covariance": fit["cov"][7:, 7:],
-                   "range_fit_g": obs.geometry.parameters.g, "range_chi2": fit["prior_chi2"]}
-        fit = {**fit, "x": fit["x"][:7], "cov": fit["cov"][:7, :7]}
+        fit, refined = split_refined(obs, fit, 7)
     x, cov7 = fit["x"], fit["cov"]
     per_roughness = ts_sigma(chosen, 1.0)  # σ is linear in the family's roughness
     idx = [0, 1, 2, 6]

@@ -36,8 +36,10 @@ With one lobe to fit this is ``full``'s final fit, from the short fit as the
 image-only final fit would start; with several, those choose the lobe and
 the chosen one is refined from its fit.
 
-A quadric and local windows keep their surface as given (their parameters
-are not refined, yet); so does a capture whose range states no error.
+Several lamps share the one surface: the chosen count's fit is refined
+with it the same way. A quadric and local windows keep their surface as
+given (their parameters are not refined, yet), with a warning; so does a
+capture whose range states no error.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ import numpy as np
 
 from .fitting import robust_fit
 from .observation import Observation
+from .lampsum import SeveralLampModel
 from .pointlamp import FINAL_TOL, PointLampModel, lamp_bounds, typical_scale
 from .whole_surface import SurfaceParameters, on_rays
 
@@ -62,20 +65,25 @@ STEP_SD = 1e-3
 
 
 class JointModel:
-    """The point-lamp model with its surface as parameters: ``p = (x, y, z, colour_r, colour_g, colour_b, a, g…)``.
+    """A lamp model with its surface as parameters: ``p = (x…, g…)``, ``x`` the image-only model's ``n_params``
+    (one lamp's ``(x, y, z, colour_r, colour_g, colour_b, a)``, or K lamps' ``(l₁, c₁, …, l_K, c_K, a)``).
 
     Parameters
     ----------
-    base : PointLampModel
-        The image-only model at the range fit's surface (its pixels, weights, lobe).
+    base : PointLampModel or SeveralLampModel
+        The image-only model at the range fit's surface (its pixels, weights, lobe; ``P``, ``N``, ``camera`` and
+        ``with_geometry``).
     surface : SurfaceParameters
         ``ĝ`` and ``C_g`` of the range fit.
+    n_params : int
+        Length of ``x``.
     scale : float
         The image residuals' scale ``s`` the prior is weighed with.
     """
 
-    def __init__(self, base: PointLampModel, surface: SurfaceParameters, *, scale: float = 1.0):
-        self.base, self.surface = base, surface
+    def __init__(self, base: PointLampModel | SeveralLampModel, surface: SurfaceParameters, *, n_params: int,
+                 scale: float = 1.0):
+        self.base, self.surface, self.n = base, surface, int(n_params)
         cam = np.asarray(base.camera, dtype=float)
         d = base.P - cam
         self.near = np.linalg.norm(d, axis=1)
@@ -85,9 +93,9 @@ class JointModel:
         self.sqrt_info = float(scale) * (vecs / np.sqrt(vals)).T  # s·L, LᵀL = C_g⁻¹
         self.step = STEP_SD * np.sqrt(np.maximum(np.diag(surface.cov), 1e-300))
         self.k = len(surface.g)
-        self._models: dict[bytes, PointLampModel] = {}
+        self._models: dict[bytes, PointLampModel | SeveralLampModel] = {}
 
-    def at(self, g: np.ndarray) -> PointLampModel:
+    def at(self, g: np.ndarray) -> PointLampModel | SeveralLampModel:
         """The image-only model on the surface ``g`` (the last few kept: the solver asks again at the same ``g``)."""
         key = np.asarray(g, dtype=float).tobytes()
         found = self._models.get(key)
@@ -97,8 +105,7 @@ class JointModel:
             miss = ~np.isfinite(t)  # a grazing ray the moved sphere misses: the pixel stays where it was
             P = np.where(miss[:, None], self.base.P, cam + t[:, None] * self.directions)
             N = np.where(miss[:, None], self.base.N, n)  # unit: on_rays's and the base's
-            b = self.base
-            found = PointLampModel(P, N, b.camera, b.observed, lobe=b.lobe, std=b.std)
+            found = self.base.with_geometry(P, N)
             if len(self._models) > self.k + 2:
                 self._models.clear()
             self._models[key] = found
@@ -106,13 +113,13 @@ class JointModel:
 
     def residuals(self, p: np.ndarray) -> np.ndarray:
         """Image residuals at ``(x, g)`` then the range's ``s·L(g − ĝ)``, shape ``(n·3 + k,)``."""
-        x, g = p[:7], p[7:]
+        x, g = p[: self.n], p[self.n :]
         return np.concatenate([self.at(g).residuals(x), self.sqrt_info @ (g - self.surface.g)])
 
     def jacobian(self, p: np.ndarray) -> np.ndarray:
-        """``∂ residuals / ∂ p``, shape ``(n·3 + k, 7 + k)``: the image's analytic in ``x``, forward differences
-        in ``g`` (:data:`STEP_SD`), the prior's ``s·L``."""
-        x, g = p[:7], p[7:]
+        """``∂ residuals / ∂ p``, shape ``(n·3 + k, n_params + k)``: the image's analytic in ``x``, forward
+        differences in ``g`` (:data:`STEP_SD`), the prior's ``s·L``."""
+        x, g = p[: self.n], p[self.n :]
         at = self.at(g)
         Jx = at.jacobian(x)
         r0 = at.residuals(x)
@@ -122,21 +129,21 @@ class JointModel:
             e[i] = h
             Jg[:, i] = (self.at(g + e).residuals(x) - r0) / h
         top = np.hstack([Jx, Jg])
-        bottom = np.hstack([np.zeros((self.k, 7)), self.sqrt_info])
+        bottom = np.hstack([np.zeros((self.k, self.n)), self.sqrt_info])
         return np.vstack([top, bottom])
 
 
-def joint_fit(base: PointLampModel, surface: SurfaceParameters, x0: np.ndarray, distance: float, *, loss: str,
-              f_scale: float | None, floor: float, scale: float) -> dict:
+def joint_fit(base: PointLampModel | SeveralLampModel, surface: SurfaceParameters, x0: np.ndarray, distance: float,
+              *, loss: str, f_scale: float | None, floor: float, scale: float) -> dict:
     """The robust fit of :class:`JointModel` from the image-only fit ``x0`` and the range fit's surface.
 
     Parameters
     ----------
-    base : PointLampModel
+    base : PointLampModel or SeveralLampModel
         The image-only model (chosen lobe, every fit pixel).
     surface : SurfaceParameters
-    x0 : ndarray, shape (7,)
-        The image-only fit.
+    x0 : ndarray, shape (n_params,)
+        The image-only fit (or a short fit on a subset of its pixels).
     distance : float
         Camera–highlight distance (m), for the parameters' typical scales.
     loss, f_scale, floor
@@ -147,12 +154,12 @@ def joint_fit(base: PointLampModel, surface: SurfaceParameters, x0: np.ndarray, 
     Returns
     -------
     dict
-        :func:`~nearlight.estimator.fitting.robust_fit`'s result over ``7 + k``
+        :func:`~nearlight.estimator.fitting.robust_fit`'s result over ``n_params + k``
         parameters (``x``, ``cov``, …), with ``chi2`` the image residuals' sum of
         squares at the fit and ``prior_chi2`` the range term's ``|L(g − ĝ)|²``.
     """
-    model = JointModel(base, surface, scale=scale)
-    lower, upper = lamp_bounds(7)
+    model = JointModel(base, surface, n_params=len(x0), scale=scale)
+    lower, upper = lamp_bounds(len(x0))
     k = model.k
     p0 = np.concatenate([x0, surface.g])
     typical = np.concatenate([typical_scale(x0, distance), np.sqrt(np.maximum(np.diag(surface.cov), 1e-300))])
@@ -164,6 +171,30 @@ def joint_fit(base: PointLampModel, surface: SurfaceParameters, x0: np.ndarray, 
     fit["chi2"] = float(np.sum(np.square(r[:-k])))
     fit["prior_chi2"] = float(np.sum(np.square(r[-k:]))) / scale**2
     return fit
+
+
+def surface_fit_choice(obs: Observation, surface: str) -> tuple[bool, str]:
+    """Whether ``full`` refines the surface with the lamps (``surface`` its option), and why, in a few words."""
+    geometry = obs.geometry
+    if surface == "fixed":
+        return False, "surface=fixed"
+    if geometry.parameters is None:
+        kind = geometry.summary.get("surface")
+        return False, ("the capture's own normals" if kind is None
+                       else f"the range fitted a {kind} surface, whose parameters are not refined")
+    sigma = geometry.range.equivalent_sigma_m
+    if surface == "auto" and not sigma > JOINT_MIN_RANGE_M:
+        return False, f"the range's error {sigma:.3g} m is below {JOINT_MIN_RANGE_M:g} m"
+    return True, f"one {geometry.parameters.kind} fitted to a range with error {sigma:.3g} m"
+
+
+def split_refined(obs: Observation, fit: dict, n_params: int) -> tuple[dict, dict]:
+    """A :func:`joint_fit` result as the image-only fit's (``x`` and ``cov`` of the lamps' ``n_params``) and the
+    refined surface's record (``stages["full"]["surface_parameters"]``)."""
+    refined = {"kind": obs.geometry.parameters.kind, "g": fit["x"][n_params:],
+               "covariance": fit["cov"][n_params:, n_params:], "range_fit_g": obs.geometry.parameters.g,
+               "range_chi2": fit["prior_chi2"]}
+    return {**fit, "x": fit["x"][:n_params], "cov": fit["cov"][:n_params, :n_params]}, refined
 
 
 def fixed_surface_warning(obs: Observation, joint: bool) -> str | None:

@@ -116,6 +116,25 @@ class SeveralLampModel:
         """The same pixels and weights with another lobe family."""
         return SeveralLampModel(self.lamp.with_lobe(lobe), self.k, self.phases)
 
+    def with_geometry(self, P: np.ndarray, N: np.ndarray) -> SeveralLampModel:
+        """The same on other surface points and normals (:meth:`PointLampModel.with_geometry`); the pixels' measured
+        polarization angles stay, each lamp's is the new geometry's."""
+        return SeveralLampModel(self.lamp.with_geometry(P, N), self.k, self.phases)
+
+    @property
+    def P(self) -> np.ndarray:
+        """The pixels' surface points (n, 3), metres."""
+        return self.lamp.P
+
+    @property
+    def N(self) -> np.ndarray:
+        """The pixels' unit normals (n, 3)."""
+        return self.lamp.N
+
+    @property
+    def camera(self) -> np.ndarray:
+        return self.lamp.camera
+
     def lamp_params(self, x: np.ndarray, i: int) -> np.ndarray:
         """Lamp ``i``'s single-lamp parameters ``(x, y, z, c_R, c_G, c_B, a)``, shape (7,)."""
         return np.concatenate([x[6 * i : 6 * i + 6], x[-1:]])

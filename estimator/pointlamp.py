@@ -77,6 +77,11 @@ class PointLampModel:
         """The same pixels and weights with another lobe family."""
         return PointLampModel(self.P, self.N, self.camera, self.observed, lobe=lobe, std=self.std)
 
+    def with_geometry(self, P: np.ndarray, N: np.ndarray) -> PointLampModel:
+        """The same pixels' observations, weights and lobe on other surface points ``P`` and unit normals ``N``
+        (n, 3): ``full``'s joint fit moving the surface."""
+        return PointLampModel(P, N, self.camera, self.observed, lobe=self.lobe, std=self.std)
+
     def _lobe(self, x: np.ndarray) -> tuple:
         """``f = F / r²`` where lit (else 0), shape (n,), the geometry and where lit, at ``x``.
 

@@ -40,7 +40,7 @@ from ..physics.reflectance import LOBES, peak_shape, roughness_for_ts_sigma, ts_
 from .first_stage import RaySearch, fast_search, t_search_defaults
 from .fitting import log_regression
 from .highlights import HIGHLIGHT_FLOOR, Highlights, highlights_of, segment_highlights
-from .joint_surface import fixed_surface_warning
+from .joint_surface import fixed_surface_warning, joint_fit, split_refined, surface_fit_choice
 from .lampsum import SeveralLampModel, lamp_phases
 from .lobes import FAMILIES
 from .observation import Observation
@@ -309,7 +309,7 @@ def _convert_roughness(x: np.ndarray, src: str, dst: str) -> np.ndarray:
 
 def several_estimate(capture: Capture, one: Estimate, obs: Observation, *, lamps: int | str, lobe: str, noise: str,
                      loss: str, f_scale: float | None, max_pixels: int, saturation: float | None, n_starts: int,
-                     separation: str) -> Estimate:
+                     separation: str, surface: str = "fixed") -> Estimate:
     """Method ``full`` with ``lamps`` = K > 1 or ``"auto"``: a joint fit of K lamps, or the K of least BIC.
 
     K = 1 is ``one``, ``full``'s one-lamp fit (``lamps=1``), bit for bit. Each further
@@ -339,8 +339,11 @@ def several_estimate(capture: Capture, one: Estimate, obs: Observation, *, lamps
     lamps : int or "auto"
         K, or ``"auto"``: K = 1 … min(highlights + 1, :data:`MAX_FITTED_LAMPS`),
         chosen by :func:`lamp_count_evidence`.
-    lobe, noise, loss, f_scale, max_pixels, saturation, n_starts, separation
-        As :func:`~nearlight.estimator.full.full_estimate`'s.
+    lobe, noise, loss, f_scale, max_pixels, saturation, n_starts, separation, surface
+        As :func:`~nearlight.estimator.full.full_estimate`'s. With the surface refined
+        (:func:`~nearlight.estimator.joint_surface.surface_fit_choice`), the chosen K's fit is refined with the
+        one surface all its highlights lie on (:func:`~nearlight.estimator.joint_surface.joint_fit`); the fits
+        that chose K took it as given.
 
     Returns
     -------
@@ -443,6 +446,14 @@ def several_estimate(capture: Capture, one: Estimate, obs: Observation, *, lamps
     if lamps == "auto" and k == 1:
         return _with_count(one, evidence, found)
     fit, family = fits[k], fits[k]["lobe"]
+    joint, why = surface_fit_choice(obs, surface)
+    refined = None
+    if joint:
+        n_params = len(fit["x"])
+        fit = joint_fit(SeveralLampModel(base.with_lobe(family), k, phases), obs.geometry.parameters, fit["x"],
+                        obs.scale, loss=loss, f_scale=f_scale, floor=floor,
+                        scale=float(np.sqrt(fit["chi2"] / max(3 * int(use.sum()) - n_params, 1))))
+        fit, refined = split_refined(obs, fit, n_params)
     x, cov = fit["x"], fit["cov"]
     order = sorted(range(k), key=lambda i: -float(np.mean(x[6 * i + 3 : 6 * i + 6])))
     brightest = order[0]
@@ -464,6 +475,7 @@ def several_estimate(capture: Capture, one: Estimate, obs: Observation, *, lamps
         "lobes_fitted": list(families), "noise": None if fit_px.camera is None else fit_px.camera._asdict(),
         "loss": loss, "n_pixels": int(use.sum()), "n_dark_measured": int(fit_px.measured.sum()),
         "lamp_phases": phases is not None,
+        "surface_fit": "joint" if joint else "fixed", "surface_fit_reason": why, "surface_parameters": refined,
     }
     if lamps == "auto":
         stage["lamps_evidence"] = evidence
@@ -479,7 +491,7 @@ def several_estimate(capture: Capture, one: Estimate, obs: Observation, *, lamps
         stages={"init": one.stages["init"], "full": stage},
         diagnostics=_diagnostics(one, found),
         timings={**one.timings, "several": time.perf_counter() - clock},
-    ).with_warning(fixed_surface_warning(obs, joint=False))  # K lamps: the surface taken as given
+    ).with_warning(fixed_surface_warning(obs, joint))
 
 
 def _diagnostics(one: Estimate, found: Highlights) -> dict:

@@ -235,13 +235,10 @@ def test_the_range_fits_covariance_covers_its_scatter(shape, error, k, request):
     assert np.mean(m2) < 1.5 * k
 
 
-def test_several_lamps_take_the_surface_as_given_and_say_so(board):
-    """``lamps=2`` fits its lamps on the range's surface as given: its covariance is the image's share only. With
-    ``lamps=auto`` choosing one lamp the estimate is the one-lamp fit's, warnings included (the joint fit ran)."""
+def test_lamps_auto_choosing_one_lamp_keeps_its_warnings(board):
+    """``lamps=auto`` choosing one lamp is the one-lamp fit, warnings included (the surface as given: the image's
+    share only; refined: none). Several lamps refining their surface: tests/estimator/test_several_lamps.py."""
     noisy = perturb_range(board, sigma_m=1e-3, seed=0)
-    two = full_estimate(noisy, lamps=2)
-    assert two.stages["full"]["n_lamps"] == 2
-    assert len(_covariance_warnings(two)) == 1 and "plane surface" in _covariance_warnings(two)[0]
     auto = full_estimate(noisy, lamps="auto", surface="fixed")
     assert auto.stages["full"]["n_lamps"] == 1 and len(_covariance_warnings(auto)) == 1
     assert not _covariance_warnings(full_estimate(noisy, lamps="auto"))

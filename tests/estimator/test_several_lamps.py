@@ -254,3 +254,26 @@ def test_project_out_handles_a_lamp_that_lights_almost_nothing():
     # all-zero columns: nothing to project on; two identical lamps: the least-squares projection
     np.testing.assert_array_equal(project_out(Jf, np.zeros((300, 3))), Jf)
     np.testing.assert_allclose(project_out(Jf, np.concatenate([lit, lit], axis=1)), projected(lit), atol=1e-10)
+
+
+def test_several_lamps_refine_the_one_surface_they_share(two):
+    """``lamps=2`` on the two-lamp board, no camera noise, 1 mm of range noise: the chosen count's fit refined
+    with the plane both highlights lie on (``surface=auto``: ``full``'s joint fit) pulls both lamps back, as for
+    one lamp. Measured over seeds 0-2 (% of each lamp's distance, fixed → joint): 0.030, 0.019, 0.066 → 0.0025,
+    0.0007, 0.0039 for the first lamp, the second alike (ratios 10-27). With the surface as given the covariance
+    is the image's share only and the estimate says so."""
+    from nearlight.generator.range_sensor import perturb_range
+
+    def covariance_warnings(est):
+        return [w for w in est.diagnostics.get("warnings", []) if w.startswith("covariance:")]
+
+    for seed in (0, 2):
+        cap = perturb_range(two, sigma_m=1e-3, seed=seed)
+        fixed = estimate(cap, method="full", lamps=2, surface="fixed")
+        joint = estimate(cap, method="full", lamps=2)
+        stage = joint.stages["full"]
+        assert stage["n_lamps"] == 2 and stage["surface_fit"] == "joint"
+        assert stage["surface_parameters"]["kind"] == "plane"
+        assert not covariance_warnings(joint)
+        assert len(covariance_warnings(fixed)) == 1 and "plane surface" in covariance_warnings(fixed)[0]
+        assert max(lamp_errors_pct(two, joint)) < min(lamp_errors_pct(two, fixed)) / 4, seed
