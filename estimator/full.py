@@ -235,8 +235,8 @@ def full_estimate(
         :data:`~nearlight.estimator.joint_surface.JOINT_MIN_RANGE_M`, ``joint`` whenever the surface is a plane or a
         sphere, ``fixed`` never. Which ran, and why: ``stages["full"]["surface_fit"]``
         (``"joint"`` or ``"fixed"``) and ``surface_fit_reason``; the refined
-        surface in ``surface_parameters``. With several lamps the surface is
-        taken as given.
+        surface in ``surface_parameters``. With several lamps the chosen count's
+        fit is refined with the surface they share.
     lamps : int or "auto"
         Number of point lamps fitted: 1 (the default: the fit above), K ≤
         :data:`~nearlight.estimator.several.MAX_FITTED_LAMPS`, or ``"auto"`` (the count
