@@ -46,6 +46,10 @@ SPHERE_ITERATIONS = 5
 #: the sphere, so each step is a fraction of the last (measured on the analytic sphere at 640×480: 1/8 to 1/40),
 #: and after such a step the fit is within about a hundredth of a standard deviation of its optimum.
 SPHERE_STEP_SD = 0.1
+#: A sphere is refused when its normal equations, scaled to unit diagonal, have a larger condition number: its radius
+#: is then not fixed by the points (a bench board that no pixel-grid plane fitted ran off to R = 460 ± 60 m, 1.9e16;
+#: the analytic sphere at 160×120 and 640×480 under 0.05-1 mm of noise or 1-mm steps: 31-162).
+SPHERE_MAX_CONDITION = 1e12
 #: The sphere's Gauss–Newton runs on about this many of the points first (every k-th), then on all from there
 #: (one or two steps: the subsample's optimum is a few of its own s.d. from the whole's). Each pass over the
 #: ~10⁵ points of a 640×480 sphere costs ~25 ms; from the algebraic start all six did.
@@ -324,14 +328,22 @@ def one_sphere(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndarr
     if not R > 0:
         return None
     along = axis_cosine(r, rays, model)
-    sub = slice(None, None, max(1, len(Q) // SPHERE_SUBSAMPLE))
-    c, R = _sphere_gauss_newton(Q[sub], r[sub], along[sub], cam - ref, model, floor, c, R, SPHERE_ITERATIONS)[:2]
+    every = len(Q) // SPHERE_SUBSAMPLE
+    if every > 1:
+        sub = slice(None, None, every)
+        c, R = _sphere_gauss_newton(Q[sub], r[sub], along[sub], cam - ref, model, floor, c, R, SPHERE_ITERATIONS)[:2]
+        if not (np.all(np.isfinite(c)) and R > 0):
+            return None
     c, R, n, w, res = _sphere_gauss_newton(Q, r, along, cam - ref, model, floor, c, R, SPHERE_ITERATIONS)
     scale = 1.4826 * float(np.median(np.abs(res)))
-    if not scale <= PLANE_FIT:
+    if not (scale <= PLANE_FIT and np.all(np.isfinite(c)) and R > 0):
         return None
     J = np.column_stack([-n, -np.ones(len(n))]) * w[:, None]
-    cov = np.linalg.inv(J.T @ J) * max(scale, 1.0) ** 2
+    H = J.T @ J
+    d = np.sqrt(np.diag(H))
+    if not np.linalg.cond(H / np.outer(d, d)) <= SPHERE_MAX_CONDITION:
+        return None  # a radius the points do not fix: a plane-like patch run off to R → ∞
+    cov = np.linalg.inv(H) * max(scale, 1.0) ** 2
     centre = c + ref
     near = np.linalg.norm(X - cam, axis=1)
     g = np.concatenate([centre, [R]])
@@ -397,9 +409,15 @@ def _sphere_gauss_newton(Q: np.ndarray, r: np.ndarray, along: np.ndarray, cam: n
             break
         J = np.column_stack([-n, -np.ones(len(n))]) * w[:, None]
         H = J.T @ J
-        step = np.linalg.solve(H, -(J.T @ res))
+        if not np.all(np.isfinite(H)):
+            break  # points no sphere describes (the residuals say so, and one_sphere refuses the fit)
+        try:
+            step = np.linalg.solve(H, -(J.T @ res))
+            var = np.diag(np.linalg.inv(H))
+        except np.linalg.LinAlgError:
+            break
         c, R = c + step[:3], R + float(step[3])
-        if np.all(np.abs(step) <= SPHERE_STEP_SD * np.sqrt(np.diag(np.linalg.inv(H)))):
+        if np.all((var > 0) & (np.abs(step) <= SPHERE_STEP_SD * np.sqrt(np.abs(var)))):
             iterations = it + 1  # converged: the next pass only evaluates
     return c, R, n, w, res
 

@@ -91,6 +91,19 @@ def test_a_sphere_is_one_sphere_and_its_normals_come_from_it(sphere):
     assert 0.3 < np.median(err / noisy.sd_rad[ok]) < 3.0
 
 
+def test_a_plane_is_not_taken_for_a_huge_sphere(board):
+    """Points on a plane, noisy: the sphere fit runs its radius off towards infinity, where the points no longer fix
+    it; one_sphere refuses it (a bench board that no pixel-grid plane fitted ran off to R = 460 ± 60 m and its
+    joint fit's covariance lost positive definiteness: tests/generator/test_nuisances.py)."""
+    from nearlight.estimator import whole_surface
+    from nearlight.estimator.range_error import RangeModel
+
+    cap = perturb_range(board, sigma_m=1e-3, seed=0)
+    valid = np.all(np.isfinite(cap.P), axis=-1)
+    assert whole_surface.one_sphere(cap.P.astype(float), valid, capture_rays(board), np.asarray(board.camera.position),
+                                    RangeModel(sigma_m=1e-3), 0.0) is None
+
+
 def _ellipsoid(clean, radii):
     """Points and normals where the capture's rays meet the ellipsoid of ``radii`` about (0, 0, 0.15)."""
     rays = capture_rays(clean)
