@@ -321,8 +321,10 @@ def one_sphere(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndarr
     r = directions(X, cam)
     ref = X.mean(axis=0)
     Q = X - ref
-    A = np.column_stack([2 * Q, np.ones(len(Q))])  # centred: its normal equations are well conditioned
-    sol = np.linalg.solve(A.T @ A, A.T @ np.einsum("ij,ij->i", Q, Q))
+    A = np.column_stack([2 * Q, np.ones(len(Q))])
+    # least squares, not the normal equations: points on exactly one plane (a range shifted so the pixel-grid
+    # plane fit refused it) make A rank-deficient, which lstsq answers and the condition test below refuses
+    sol = np.linalg.lstsq(A, np.einsum("ij,ij->i", Q, Q), rcond=None)[0]
     c = sol[:3]
     R = float(np.sqrt(max(sol[3] + c @ c, 0.0)))
     if not R > 0:
@@ -341,7 +343,7 @@ def one_sphere(P: np.ndarray, valid: np.ndarray, rays: np.ndarray, cam: np.ndarr
     J = np.column_stack([-n, -np.ones(len(n))]) * w[:, None]
     H = J.T @ J
     d = np.sqrt(np.diag(H))
-    if not np.linalg.cond(H / np.outer(d, d)) <= SPHERE_MAX_CONDITION:
+    if not (np.all(np.isfinite(H)) and np.all(d > 0) and np.linalg.cond(H / np.outer(d, d)) <= SPHERE_MAX_CONDITION):
         return None  # a radius the points do not fix: a plane-like patch run off to R → ∞
     cov = np.linalg.inv(H) * max(scale, 1.0) ** 2
     centre = c + ref
