@@ -1,0 +1,144 @@
+"""Study throughput: tasks per core-second for each renderer and method at the studies' resolutions.
+
+What limits every study nearlight ships (the GSA at 120x90, the sensitivity
+and realism sweeps at 160x120) is the cost of a task: a render, the noise,
+the method, the score. This script runs the same tasks through the sweep
+engine's own task runner (``evaluation.engine.tasks.run_task``), once with
+the Mitsuba renderer and once with the closed-form one (``renderer:
+analytic``), on the same board or sphere, camera, lamp and Torrance-Sparrow
+lobe, with the GSA's camera noise. Every scene is one Dr.Jit has not rendered
+before (its lamp at a distance never used; Dr.Jit compiles a kernel per
+scene's values and keeps it, in memory and in ~/.drjit), as a GSA sample's is.
+Each scene is rendered once and timed apart from the methods run on it
+(each method's row: noise, estimate, score), so the script prints, for each
+renderer: a render, each method, a task with one method (render + method)
+and a GSA sample (one render, every method), in CPU seconds of the process
+(all threads: Mitsuba renders on every core, so core-seconds, not wall
+clock), per core-second, and the closed-form renderer's throughput as a
+ratio to Mitsuba's (today's studies render with Mitsuba). Imports and the
+first compilation are paid once before timing. Printed, not asserted: the
+machine is shared, and a ratio inside one process is what carries over to
+another machine (issue 36's throughput benchmark).
+
+Usage::
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_throughput.py         # 120x90 and 160x120, board and sphere
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_throughput.py --resolutions 120x90 --objects board --tasks 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+#: Shared by both renderers: the GSA's camera, lamp and lobe (``sweeps/global.yaml``); the sphere of the realism
+#: study (radius 0.1 m about the origin).
+CAMERA = {"position": [0.0, -0.35, 0.5], "look_at": [0.0, 0.0, 0.0], "fov_x_deg": 50.0}
+LAMP = {"position": [0.05, 0.15, 0.35], "intensity": [2.0, 2.0, 2.0]}
+LOBE = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1}
+KD = [0.3, 0.4, 0.35]
+ANGLES = [0.0, 45.0, 90.0, 135.0]
+OBJECTS = {"board": {"type": "board", "size": [0.4, 0.4]}, "sphere": {"type": "sphere", "radius": 0.1}}
+#: The GSA's camera (``sweeps/global.yaml``'s ``noise``).
+NOISE = {"full_well": 20000, "read_noise": 5.0, "bits": 12}
+METHODS = ["paper-init", "paper", "full", "distant"]
+
+
+#: Lamp distances, m from the object, a new one for every scene this process renders (see the module
+#: docstring): from 0.35-0.45 m (a start drawn from the clock, so no two runs share one) in 0.1 mm steps.
+_DISTANCES = iter(0.35 + 1e-7 * (time.time_ns() % 10**6) + 1e-4 * np.arange(10**6))
+
+
+def sweep_doc(renderer: str, obj: str, width: int, height: int, tasks: int) -> dict:
+    """A sweep of ``tasks`` scenes (each its lamp distance never rendered before) and every method, in
+    ``renderer``'s scene format."""
+    if renderer == "mitsuba":
+        scene = {"camera": {**CAMERA, "resolution": [width, height]}, "object": OBJECTS[obj],
+                 "material": {**LOBE, "kd": KD}, "lamp": LAMP, "capture": {"analyzer_angles_deg": ANGLES}}
+    else:
+        o = OBJECTS[obj]
+        shape = ({"shape": "board", "board_size": o["size"][0]} if obj == "board"
+                 else {"shape": "sphere", "sphere_radius": o["radius"], "sphere_centre": [0.0, 0.0, 0.0]})
+        scene = {"width": width, "height": height, "fov_x_deg": CAMERA["fov_x_deg"],
+                 "camera_position": CAMERA["position"], "look_at": CAMERA["look_at"],
+                 "lamp_position": LAMP["position"], "lamp_intensity": LAMP["intensity"], "bsdf": LOBE, "kd": KD,
+                 "analyzer_angles_deg": ANGLES, "with_normals": True, **shape}
+    return {"name": f"throughput-{renderer}", "renderer": renderer, "scene": scene,
+            "axes": {"noise": {"gsa camera": NOISE}, "lamp_distance": [float(next(_DISTANCES)) for _ in range(tasks)]},
+            "seeds": 1, "methods": METHODS, "crlb": False}
+
+
+class _Rendered:
+    """A renderer that hands back one capture already rendered (the render timed apart from the method)."""
+
+    def __init__(self, capture: object) -> None:
+        self.capture = capture
+
+    def render(self, scene: dict, *, cache_dir: object) -> object:
+        return self.capture
+
+
+def timed(renderer: str, obj: str, width: int, height: int, tasks: int
+          ) -> tuple[list[float], dict[str, list[float]], dict[str, int]]:
+    """CPU seconds of each new scene's render; of each task after it (noise, method, score) per method; and the
+    count of tasks each method failed (it said why)."""
+    from nearlight.evaluation.engine.run import task_payload
+    from nearlight.evaluation.engine.sweep import load_sweep
+    from nearlight.evaluation.engine.tasks import run_task
+
+    warm = load_sweep(sweep_doc(renderer, obj, width, height, 1))
+    for task in warm.tasks:  # imports, the first compilation, each method's first call
+        run_task(task_payload(task, warm), renderer=warm.renderer, cache_dir=None)
+    sweep = load_sweep(sweep_doc(renderer, obj, width, height, tasks))
+    renders: list[float] = []
+    per: dict[str, list[float]] = {}
+    failed: dict[str, int] = {}
+    captures: dict[str, object] = {}
+    for task in sweep.tasks:
+        if task.render_key not in captures:
+            t0 = time.process_time()
+            captures[task.render_key] = sweep.renderer.render(task.scene, cache_dir=None)
+            renders.append(time.process_time() - t0)
+        t0 = time.process_time()
+        row = run_task(task_payload(task, sweep), renderer=_Rendered(captures[task.render_key]), cache_dir=None)
+        per.setdefault(task.method.label, []).append(time.process_time() - t0)
+        if row.get("status") == "error" and not str(row.get("error", "")).startswith("estimate:"):
+            raise SystemExit(f"{renderer} {obj} {task.method.label}: {row['error']}")
+        failed[task.method.label] = failed.get(task.method.label, 0) + (row.get("status") != "ok")
+    return renders, per, failed
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--resolutions", nargs="+", default=["120x90", "160x120"], help="WxH, the studies' sizes")
+    ap.add_argument("--objects", nargs="+", choices=sorted(OBJECTS), default=["board", "sphere"])
+    ap.add_argument("--tasks", type=int, default=3, help="scenes per renderer, each run by every method; medians")
+    args = ap.parse_args()
+    print("CPU seconds (all threads), median over scenes; per core-second; the analytic renderer's throughput / "
+          "Mitsuba's; how many tasks each method failed (it said why)")
+    print(f"{'res':>8} {'object':<7}{'':<19}{'mitsuba s':>10}{'per core-s':>11}{'analytic s':>11}{'per core-s':>11}"
+          f"{'ratio':>7}  failed (mitsuba, analytic)")  # fmt: skip
+    for res in args.resolutions:
+        width, height = (int(v) for v in res.lower().split("x"))
+        for obj in args.objects:
+            got = {r: timed(r, obj, width, height, args.tasks) for r in ("mitsuba", "analytic")}
+            render = {r: float(np.median(got[r][0])) for r in got}
+            method = {r: {m: float(np.median(v)) for m, v in got[r][1].items()} for r in got}
+            rows = [("render", render["mitsuba"], render["analytic"], "")]
+            for m in METHODS:
+                rows.append((f"{m} (method)", method["mitsuba"][m], method["analytic"][m],
+                             f"  {got['mitsuba'][2][m]}, {got['analytic'][2][m]}"))
+            for m in METHODS:
+                rows.append((f"{m} task", render["mitsuba"] + method["mitsuba"][m],
+                             render["analytic"] + method["analytic"][m], ""))
+            rows.append(("GSA sample", render["mitsuba"] + sum(method["mitsuba"].values()),
+                         render["analytic"] + sum(method["analytic"].values()), ""))
+            for label, mi, an, tail in rows:
+                print(f"{res:>8} {obj:<7}{label:<19}{mi:>10.3f}{1 / mi:>11.2f}{an:>11.4f}{1 / an:>11.1f}"
+                      f"{mi / an:>7.1f}{tail}")
+
+
+if __name__ == "__main__":
+    main()
