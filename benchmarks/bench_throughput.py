@@ -5,8 +5,9 @@ and realism sweeps at 160x120) is the cost of a task: a render, the noise,
 the method, the score. This script runs the same tasks through the sweep
 engine's own task runner (``evaluation.engine.tasks.run_task``), once with
 the Mitsuba renderer and once with the closed-form one (``renderer:
-analytic``), on the same board or sphere, camera, lamp and Torrance-Sparrow
-lobe, with the GSA's camera noise. Every scene is one Dr.Jit has not rendered
+analytic``), on the GSA's scene (``sweeps/global.yaml``: its board, or a
+sphere in its place; its camera, lamp and Torrance-Sparrow lobe), its camera
+noise and its methods. Every scene is one Dr.Jit has not rendered
 before (its lamp at a distance never used; Dr.Jit compiles a kernel per
 scene's values and keeps it, in memory and in ~/.drjit), as a GSA sample's is.
 Each scene is rendered once and timed apart from the methods run on it
@@ -30,20 +31,15 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import numpy as np
 
-#: Shared by both renderers: the GSA's camera, lamp and lobe (``sweeps/global.yaml``); the sphere of the realism
-#: study (radius 0.1 m about the origin).
-CAMERA = {"position": [0.0, -0.35, 0.5], "look_at": [0.0, 0.0, 0.0], "fov_x_deg": 50.0}
-LAMP = {"position": [0.05, 0.15, 0.35], "intensity": [2.0, 2.0, 2.0]}
-LOBE = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1}
-KD = [0.3, 0.4, 0.35]
-ANGLES = [0.0, 45.0, 90.0, 135.0]
-OBJECTS = {"board": {"type": "board", "size": [0.4, 0.4]}, "sphere": {"type": "sphere", "radius": 0.1}}
-#: The GSA's camera (``sweeps/global.yaml``'s ``noise``).
-NOISE = {"full_well": 20000, "read_noise": 5.0, "bits": 12}
-METHODS = ["paper-init", "paper", "full", "distant"]
+#: The GSA's sweep file: its scene (camera, board, Torrance-Sparrow lobe, lamp, analyzer), its camera noise and
+#: its methods are the benchmark's, so the benchmark follows the study when the file changes.
+GSA = Path(__file__).resolve().parents[1] / "sweeps" / "global.yaml"
+#: The objects: the GSA's board, and the realism study's sphere (radius 0.1 m about the origin).
+OBJECTS = {"board": None, "sphere": {"type": "sphere", "radius": 0.1}}
 
 
 #: Lamp distances, m from the object, a new one for every scene this process renders (see the module
@@ -52,22 +48,26 @@ _DISTANCES = iter(0.35 + 1e-7 * (time.time_ns() % 10**6) + 1e-4 * np.arange(10**
 
 
 def sweep_doc(renderer: str, obj: str, width: int, height: int, tasks: int) -> dict:
-    """A sweep of ``tasks`` scenes (each its lamp distance never rendered before) and every method, in
+    """A sweep of ``tasks`` scenes (each its lamp distance never rendered before) and the GSA's methods, in
     ``renderer``'s scene format."""
-    if renderer == "mitsuba":
-        scene = {"camera": {**CAMERA, "resolution": [width, height]}, "object": OBJECTS[obj],
-                 "material": {**LOBE, "kd": KD}, "lamp": LAMP, "capture": {"analyzer_angles_deg": ANGLES}}
-    else:
-        o = OBJECTS[obj]
-        shape = ({"shape": "board", "board_size": o["size"][0]} if obj == "board"
+    from nearlight.files.yamlfile import load_yaml_file
+
+    gsa = load_yaml_file(GSA, what="sweep file")
+    base = gsa["scene"]
+    scene = {**base, "camera": {**base["camera"], "resolution": [width, height]},
+             "object": OBJECTS[obj] or base["object"]}
+    if renderer == "analytic":
+        cam, lamp, mat, o = scene["camera"], scene["lamp"], scene["material"], scene["object"]
+        shape = ({"shape": "board", "board_size": o["size"][0]} if o["type"] == "board"
                  else {"shape": "sphere", "sphere_radius": o["radius"], "sphere_centre": [0.0, 0.0, 0.0]})
-        scene = {"width": width, "height": height, "fov_x_deg": CAMERA["fov_x_deg"],
-                 "camera_position": CAMERA["position"], "look_at": CAMERA["look_at"],
-                 "lamp_position": LAMP["position"], "lamp_intensity": LAMP["intensity"], "bsdf": LOBE, "kd": KD,
-                 "analyzer_angles_deg": ANGLES, "with_normals": True, **shape}
+        scene = {"width": width, "height": height, "fov_x_deg": cam["fov_x_deg"], "camera_position": cam["position"],
+                 "look_at": cam["look_at"], "lamp_position": lamp["position"], "lamp_intensity": lamp["intensity"],
+                 "bsdf": {k: v for k, v in mat.items() if k != "kd"}, "kd": mat["kd"],
+                 "analyzer_angles_deg": scene["capture"]["analyzer_angles_deg"], "with_normals": True, **shape}
     return {"name": f"throughput-{renderer}", "renderer": renderer, "scene": scene,
-            "axes": {"noise": {"gsa camera": NOISE}, "lamp_distance": [float(next(_DISTANCES)) for _ in range(tasks)]},
-            "seeds": 1, "methods": METHODS, "crlb": False}
+            "axes": {"noise": {"gsa camera": gsa["noise"]},
+                     "lamp_distance": [float(next(_DISTANCES)) for _ in range(tasks)]},
+            "seeds": 1, "methods": gsa["methods"], "crlb": False}
 
 
 class _Rendered:
@@ -127,10 +127,10 @@ def main() -> None:
             render = {r: float(np.median(got[r][0])) for r in got}
             method = {r: {m: float(np.median(v)) for m, v in got[r][1].items()} for r in got}
             rows = [("render", render["mitsuba"], render["analytic"], "")]
-            for m in METHODS:
+            for m in method["mitsuba"]:
                 rows.append((f"{m} (method)", method["mitsuba"][m], method["analytic"][m],
                              f"  {got['mitsuba'][2][m]}, {got['analytic'][2][m]}"))
-            for m in METHODS:
+            for m in method["mitsuba"]:
                 rows.append((f"{m} task", render["mitsuba"] + method["mitsuba"][m],
                              render["analytic"] + method["analytic"][m], ""))
             rows.append(("GSA sample", render["mitsuba"] + sum(method["mitsuba"].values()),

@@ -106,19 +106,18 @@ def test_a_plane_is_not_taken_for_a_huge_sphere(board):
 
 def test_points_on_one_plane_are_no_sphere_and_raise_nothing(board):
     """Points exactly on one plane (no noise: the realism study's Mitsuba board with its range shifted by 0.36 px,
-    which the pixel-grid plane fit refuses) make the algebraic sphere fit rank-deficient; one_sphere says "no sphere" and raises
-    nothing (on main 45b2da5 its normal equations raised ``LinAlgError: Singular matrix``, 8 failed tasks in
-    reports/realism)."""
+    which the pixel-grid plane fit refuses) make the algebraic sphere fit rank-deficient; one_sphere says "no
+    sphere" and raises nothing, and the fitted surface has its normals (on main 45b2da5 the normal equations raised
+    ``LinAlgError: Singular matrix``: 10 crashed tasks in reports/realism)."""
     from nearlight.estimator import whole_surface
     from nearlight.estimator.range_error import RangeModel
+    from nearlight.generator.nuisances import bilinear_shift
 
     P = board.P.astype(float)
     P[..., 2] = 0.0  # the board's plane z = 0, exactly: one column of the algebraic fit's design is zero
     valid = np.all(np.isfinite(P), axis=-1)
     assert whole_surface.one_sphere(P, valid, capture_rays(board), np.asarray(board.camera.position),
                                     RangeModel(sigma_m=1e-3), 0.0) is None
-    from nearlight.generator.nuisances import bilinear_shift
-
     shifted = bilinear_shift(P, 0.3, 0.2).astype(np.float32)  # the realism study's 0.36 px row
     fitted = fit_surface(shifted, board.camera.position, capture_rays(board))
     assert np.isfinite(fitted.N[valid]).all(axis=-1).mean() > 0.9
