@@ -41,8 +41,9 @@ import itertools
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
-from scipy.stats import binomtest, chi2
 from tqdm import tqdm
+
+from nearlight.evaluation.scoring.calibration import coverage, coverage_cells
 
 NOISE = {  # sweeps/sensitivity.yaml's camera noise levels
     "low": {"full_well": 50000, "read_noise": 3.0, "bits": 14},
@@ -127,7 +128,6 @@ def main() -> None:
     with ProcessPoolExecutor(args.workers) as pool:
         results = list(tqdm(pool.map(_one, jobs, chunksize=4), total=len(jobs), desc="captures", unit="capture"))
     rng = np.random.default_rng(0)
-    spread = np.random.default_rng(1)  # the d²/3 bootstrap's own: the RMSE bound's draws as before
     print(f"\n{args.seeds} seeds per row (from {args.first_seed}), {SIZE[0]}x{SIZE[1]}; RMSE and bound in mm; "
           "ratio = RMSE / bound, its one-sided 95 % bootstrap upper bound; the share of truths inside the method's "
           "95 % ellipsoid (its own covariance, the lamp block) with its exact binomial 95 % interval; the mean squared "
@@ -142,22 +142,14 @@ def main() -> None:
             res = np.array([r[label] for r in part])
             err, m2 = res[:, :3], res[:, 3]
             ok = np.all(np.isfinite(err), axis=1)
-            has = ok & np.isfinite(m2)
-            if has.any():
-                inside = int(np.sum(m2[has] <= chi2.ppf(0.95, 3)))
-                lo, hi = binomtest(inside, int(has.sum())).proportion_ci(0.95)
-                coverage = f"{inside / has.sum():.3f} [{lo:.3f}, {hi:.3f}]"
-                d2 = m2[has] / 3
-                mean_d2 = d2[spread.integers(0, len(d2), (2000, len(d2)))].mean(axis=1)
-                calibration = f"{d2.mean():.2f} [{np.percentile(mean_d2, 2.5):.2f}, {np.percentile(mean_d2, 97.5):.2f}]"
-            else:
-                coverage = calibration = "no covariance"
+            figures = coverage(np.where(ok, m2, np.nan))  # the scorecards' and reports' own figures
+            inside_95, calibration = coverage_cells(figures)
             sq = np.sum(err[ok] ** 2, axis=1)
             rmse = float(np.sqrt(sq.mean())) if ok.any() else np.nan
             boot = np.sqrt(sq[rng.integers(0, len(sq), (2000, len(sq)))].mean(axis=1)) if ok.any() else [np.nan]
             upper = float(np.percentile(boot, 95))
             print(f"| {shape} | {noise} | {rng_label} | {label} | {rmse * 1e3:.3g} | {bound * 1e3:.3g} | "
-                  f"{rmse / bound:.2f} | {upper / bound:.2f} | {coverage} | {calibration} | {int((~ok).sum())} |", flush=True)
+                  f"{rmse / bound:.2f} | {upper / bound:.2f} | {inside_95} | {calibration} | {int((~ok).sum())} |", flush=True)
 
 
 if __name__ == "__main__":

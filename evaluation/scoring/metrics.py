@@ -41,6 +41,7 @@ from ...estimator import Estimate
 from ...estimator.highlights import segment_highlights
 from ...physics.polarization import through_polarizer
 from ...physics.reflectance import LOBES, mitsuba_ts_sigma, shading_geometry, ts_sigma
+from .calibration import MAHALANOBIS_COLUMN, lamp_mahalanobis_sq
 from .independent_resynthesis import fitted_stage, resynthesize
 from .matching import gate_radii, match_lamps
 
@@ -74,7 +75,7 @@ HIGHLIGHTS_COLUMN = "highlights_true"
 COUNTED_COLUMN = "lamps_counted"
 #: Other numeric columns of a row (not compared as regressions).
 INFO_COLUMNS = ("distance_signed_m", "lamp_distance_true_m", "sigma_truth", "crlb_lamp_m", "crlb_sigma_rel",
-                *ESTIMATE_COLUMNS, *LAMP_COUNT_COLUMNS, HIGHLIGHTS_COLUMN, COUNTED_COLUMN)
+                *ESTIMATE_COLUMNS, *LAMP_COUNT_COLUMNS, HIGHLIGHTS_COLUMN, COUNTED_COLUMN, MAHALANOBIS_COLUMN)
 
 
 def estimate_columns(estimate: Any) -> dict[str, Any]:
@@ -555,7 +556,9 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
     -------
     dict of str to float
         The :data:`METRICS` columns (but ``runtime_s``) and ``distance_signed_m``,
-        ``lamp_distance_true_m`` (m), ``sigma_truth`` (rad), the
+        ``lamp_distance_true_m`` (m), ``sigma_truth`` (rad), ``lamp_mahalanobis_sq``
+        (:func:`~nearlight.evaluation.scoring.calibration.lamp_mahalanobis_sq`: one true and one
+        estimated lamp, else NaN), the
         :data:`LAMP_COUNT_COLUMNS` and, with several true lamps, the per-lamp
         columns (:func:`lamp_scores`: the lamp columns are then the worst over
         the true lamps, NaN when one was missed). Each is finite or
@@ -606,5 +609,8 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
         "lamp_distance_true_m": lamps.pop("lamp_distance_true_m"),
         "sigma_truth": sigma_true,
     }
+    truths = true_lamps(truth)
+    one = len(truths) == 1 and len(estimated_lamps(estimate)) == 1
+    out[MAHALANOBIS_COLUMN] = lamp_mahalanobis_sq(estimate, truths[0]) if one else math.nan
     out.update(lamps)
     return out

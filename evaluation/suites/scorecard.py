@@ -47,6 +47,7 @@ from ..engine.store import SWEEP_JSON, ResultStore, read_sweep_json, set_aside_d
 from ..engine.sweep import check_method
 from ..engine.tasks import blank_row, failed_row, run_method
 from ..engine.workers import completed, executing
+from ..scoring.calibration import MAHALANOBIS_COLUMN, coverage, coverage_cells
 from ..scoring.metrics import ESTIMATE_COLUMNS, INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
 from .suite import INPUT, MANIFEST, TRUTH, checksum_problems, read_manifest, strip_truth
 
@@ -254,6 +255,8 @@ def _group_stats(g: pd.DataFrame) -> dict[str, Any]:
         vals = np.where(ok, g[metric].to_numpy(dtype=float), np.nan)
         med, lo, hi = median_ci(vals)
         stats[metric] = {"recall": _recalls(vals, thresholds), "median": med, "median_ci95": [lo, hi]}
+    if MAHALANOBIS_COLUMN in g.columns:  # rows written before the column existed have none
+        stats["covariance"] = coverage(np.where(ok, g[MAHALANOBIS_COLUMN].to_numpy(dtype=float), np.nan))
     return stats
 
 
@@ -265,8 +268,9 @@ def scorecard(df: pd.DataFrame, manifest: Mapping[str, Any], *, label: str, cate
     dict
         ``format``, ``suite``, ``version``, ``cases_hash``, ``method``, ``thresholds``
         (metric -> list), ``groups``: ``[{"category", "value", "n", "failed", <metric>: {"recall":
-        [per threshold], "median", "median_ci95": [low, high]}}]`` (first ``all``, then each value of
-        each category), ``runtime_s`` (method seconds per case: median and total) and
+        [per threshold], "median", "median_ci95": [low, high]}, "covariance": {...}}]`` (first ``all``, then
+        each value of each category; ``covariance`` the stated ellipsoid's figures,
+        :func:`~nearlight.evaluation.scoring.calibration.coverage`), ``runtime_s`` (method seconds per case: median and total) and
         ``code_version``.
     """
     groups = [{"category": "all", "value": "all", **_group_stats(df)}]
@@ -325,6 +329,15 @@ def scorecard_markdown(card: Mapping[str, Any]) -> str:
                          *(f"{100 * r:.0f}" for r in s["recall"]), med])  # fmt: skip
         lines += ["", f"## {LABELS[metric]} ({metric}, {unit})", "",
                   markdown_table(["category", "value", "n", "failed", *heads, "median [95 % CI]"], rows)]
+    if any("covariance" in g for g in card["groups"]):
+        rows = [[str(g["category"]), str(g["value"]), str(g["covariance"]["n"]), *coverage_cells(g["covariance"])]
+                for g in card["groups"] if "covariance" in g]
+        lines += ["", "## Covariance: the stated lamp ellipsoid", "",
+                  "Cases with a covariance (one lamp; a method without one reads \"not given\"); the share of true "
+                  "lamps inside the stated 95 % ellipsoid with its exact binomial 95 % interval (0.95 for a Gaussian "
+                  "error of the stated size); the mean squared Mahalanobis distance over 3 with its 95 % bootstrap "
+                  "interval (1 when the covariance equals the error's).", "",
+                  markdown_table(["category", "value", "with covariance", "inside 95 % [CI]", "mean d²/3 [CI]"], rows)]
     if card.get("errors"):
         lines += ["", "## Failures (first distinct messages)", ""] + [f"- `{e}`" for e in card["errors"]]
     return "\n".join(lines) + "\n"

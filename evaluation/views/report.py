@@ -17,6 +17,9 @@ Writes into ``DIR/report/``:
   ``lamps.csv``, per method the true lamps, the lamps found, matched, missed and extra (summed over
   tasks), the tasks that found every lamp and nothing else, and each true lamp's median position
   error; ``lamps.png``, the missed and extra lamps per method;
+- when a method returned a covariance (:mod:`nearlight.evaluation.scoring.calibration`): ``covariance.csv``,
+  per method (and per value of each varied axis) the share of truths inside its stated 95 % ellipsoid with
+  its binomial interval and the mean squared Mahalanobis distance over 3; "not given" for the others;
 - when configurations without camera noise ran several seeds (per-shot draws: ``camera.jitter_px``,
   analyzer jitter, lamp flicker), "luck" (:mod:`nearlight.evaluation.views.luck`): ``luck.csv``, the
   spread over those seeds beside what each axis does, and ``luck_vs_axes.png``.
@@ -31,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from ..engine.environment import code_version
+from ..scoring.calibration import MAHALANOBIS_COLUMN, coverage_table
 from ..scoring.matching import GATE_FRACTION
 from ..scoring.metrics import COUNTED_COLUMN, LAMP_COUNT_COLUMNS, METRICS, PER_LAMP_COLUMN
 from .one_at_a_time import LABEL_AXES, SPLIT, label_table, markdown_tables, plot_heatmap
@@ -235,13 +239,14 @@ def plot_lamps(table: pd.DataFrame, path: Path) -> None:
 
 
 def report_files(varied: list[str], labelled: list[str] = (), luck: bool = False,
-                 lamps: bool = False) -> dict[str, str]:
+                 lamps: bool = False, covariance: bool = False) -> dict[str, str]:
     """``{file name: kind}`` of every file a report writes (kinds: :data:`nearlight.files.outputs.KINDS`).
 
     ``varied``: the axes with several values; ``labelled``: the axes of named configurations
     (:data:`~nearlight.evaluation.views.one_at_a_time.LABEL_AXES`) the sweep has; ``luck``: whether the
     luck section is written (:func:`~nearlight.evaluation.views.luck.luck_table` not empty); ``lamps``:
-    whether the lamps section is (:func:`lamp_table` not empty).
+    whether the lamps section is (:func:`lamp_table` not empty); ``covariance``: whether a method returned a
+    covariance (:func:`covariance_tables` not empty).
     """
     files = {"summary.md": "report-md", "overall.csv": "report-csv", "by_axis.csv": "report-csv",
              "crlb.csv": "report-csv"}  # fmt: skip
@@ -254,7 +259,20 @@ def report_files(varied: list[str], labelled: list[str] = (), luck: bool = False
     if lamps:
         files.update({"lamps.csv": "report-csv", "lamps.png": "png"})
         files.update({_lamps_by_name(a): "report-csv" for a in labelled})
+    if covariance:
+        files["covariance.csv"] = "report-csv"
     return files
+
+
+def covariance_tables(df: pd.DataFrame, varied: list[str]) -> tuple[pd.DataFrame, list[tuple[str, pd.DataFrame]]]:
+    """The covariance section's tables: per method (every method; "not given" without a covariance), and per
+    value of each ``varied`` axis and method (the methods with a covariance only); both empty when no method
+    returned one."""
+    if MAHALANOBIS_COLUMN not in df.columns or not np.isfinite(df[MAHALANOBIS_COLUMN].to_numpy(dtype=float)).any():
+        return pd.DataFrame(), []
+    given = df.groupby("method", sort=False)[MAHALANOBIS_COLUMN].transform(
+        lambda v: np.isfinite(v.to_numpy(dtype=float)).any())
+    return coverage_table(df, ["method"]), [(a, coverage_table(df[given], [a, "method"])) for a in varied]
 
 
 def _lamps_by_name(axis: str) -> str:
@@ -298,7 +316,9 @@ def write_report(
     folder = Path(out) if out is not None else results_dir / "report"
     luck = luck_table(df, axes)
     lamps = lamp_table(df)
-    check_files_in(folder, report_files(varied, labelled, luck=not luck.empty, lamps=not lamps.empty))
+    cov_overall, cov_by = covariance_tables(df, varied)
+    check_files_in(folder, report_files(varied, labelled, luck=not luck.empty, lamps=not lamps.empty,
+                                        covariance=not cov_overall.empty))
     make_folder(folder, what="report folder")
 
     overall = stats(df, ["method"])
@@ -342,6 +362,21 @@ def write_report(
                    "segmentation, `nearlight.estimator.highlights.segment_highlights`; 1 where the lamps' highlights "
                    "have merged into one blob), a range where the other axes change it; per method, the tasks that found every lamp and nothing extra, "
                    "of its tasks (failed ones count as not found).", "", frame_table(_lamps_by_wide(by)), ""]
+    if not cov_overall.empty:
+        long = pd.concat([cov_overall.assign(axis="all", value="all")]
+                         + [t.rename(columns={a: "value"}).assign(axis=a) for a, t in cov_by], ignore_index=True)
+        long["value"] = long["value"].astype(str)
+        write_text(folder / "covariance.csv", long[["axis", "value", *cov_overall.columns]].to_csv(index=False),
+                   what="the report")
+        md += ["## Covariance: is the stated lamp ellipsoid right?", "",
+               "Per method that returns a covariance, over its successful tasks with one lamp: `inside_95`, the "
+               "share of true lamps inside the stated 95 % ellipsoid with its exact binomial 95 % interval (0.95 "
+               "for a Gaussian error of the stated size); `mean_d2_over_3`, the mean squared Mahalanobis distance "
+               "over 3 with its 95 % bootstrap interval (1 when the covariance equals the error's, whatever the "
+               "error's distribution; 100 means the stated standard deviations are 10 times too small). "
+               "`nearlight.evaluation.scoring.calibration`.", "", frame_table(cov_overall), ""]
+        for a, t in cov_by:
+            md += [f"### Covariance by {a}", "", frame_table(t), ""]
     tables = [label_table(df, a) for a in labelled]
     if tables:
         write_text(folder / "one_at_a_time.csv", pd.concat(tables, ignore_index=True).to_csv(index=False), what="the report")
