@@ -373,8 +373,11 @@ def write_report(
                "share of true lamps inside the stated 95 % ellipsoid with its exact binomial 95 % interval (0.95 "
                "for a Gaussian error of the stated size); `mean_d2_over_3`, the mean squared Mahalanobis distance "
                "over 3 with its 95 % bootstrap interval (1 when the covariance equals the error's, whatever the "
-               "error's distribution; 100 means the stated standard deviations are 10 times too small). "
-               "`nearlight.evaluation.scoring.calibration`.", "", frame_table(cov_overall), ""]
+               "error's distribution; 100 means the stated standard deviations are 10 times too small). A "
+               "covariance holds the noise's share of the error, not a bias's: on a noise-free capture it is "
+               "float rounding's, and its distances read the model's own discretisation; under a rig "
+               "imperfection the method does not model they read that imperfection's bias (`full` warns when "
+               "its residuals show it). `nearlight.evaluation.scoring.calibration`.", "", frame_table(cov_overall), ""]
         for a, t in cov_by:
             md += [f"### Covariance by {a}", "", frame_table(t), ""]
     tables = [label_table(df, a) for a in labelled]
