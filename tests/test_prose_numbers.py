@@ -114,6 +114,10 @@ QUOTES = [
     Quote("docs/physics.md", "on the torus {} % with and {} % without",
           "bench_seeds/curved/report/one_at_a_time.csv",
           (Cell({"label": "bench"}, "median"), Cell({"label": "bench, range not quantised"}, "median")), "{:.2f}"),
+    Quote("docs/measurements/estimator-choices.md", "inside the ellipsoid {} at low noise and {} at high",
+          "sensitivity/report/covariance.csv",
+          (Cell({"axis": "noise", "value": "low", "method": "full"}, "inside_95"),
+           Cell({"axis": "noise", "value": "high", "method": "full"}, "inside_95"))),
     Quote("docs/render-compare.md", "the {} captures of that study",
           "sensitivity/results.parquet", (Count({"method": "full"}),)),
 ]
