@@ -38,7 +38,7 @@ from .joint_surface import fixed_surface_warning, joint_fit, split_refined, surf
 from .lobes import FAMILIES
 from .observation import THRESHOLD, Observation, observation_of
 from .options import Choice, Count, CountOrZero, Positive, forwards
-from .noise import FLOOR as NOISE_FLOOR
+from .noise import std_floor
 from .pixels import weighted_fit_pixels
 from .pointlamp import (PointLampModel, best_short_fit, final_fit, loss_floor, peak_ray_starts, short_fit,
                         start_observation)
@@ -119,8 +119,8 @@ def misfit_warning(chi2: float, dof: int, std: np.ndarray | None, floor: float) 
     """The warning of a fit whose residuals the camera noise does not explain (:data:`MISFIT_P`), else None.
 
     ``std`` (n, 3) are the fit's per-value standard deviations (None: no camera model, the residuals are their
-    own noise's measure) and ``floor`` their float-rounding floor (:data:`~nearlight.estimator.noise.FLOOR` ×
-    the specular peak): where most sit on it the capture is noise-free, the weights the floor's and not a
+    own noise's measure) and ``floor`` their float-rounding floor (:func:`~nearlight.estimator.noise.std_floor`):
+    where most sit on it the capture is noise-free, the weights the floor's and not a
     camera's, and a render's own last bits (the Mitsuba cylinder's residuals 1.27× the floor) are no misfit.
     """
     if std is None or np.mean(std <= floor * (1 + 1e-6)) > 0.5:
@@ -401,4 +401,4 @@ def one_lamp_fit(capture: Capture, *, lobe: str, noise: str, loss: str, f_scale:
                      "n_start_pixels": int(start.mask.sum())},
         timings=timings,
     ).with_warning(no_specular_warning(evidence_specular)).with_warning(fixed_surface_warning(obs, joint)).with_warning(
-        misfit_warning(fit["chi2"], dof, std, NOISE_FLOOR * float(np.nanmax(np.abs(obs.specular))))), obs
+        misfit_warning(fit["chi2"], dof, std, std_floor(fit_px.specular))), obs

@@ -184,6 +184,13 @@ def _camera_noise(capture: Any, surface: np.ndarray | None) -> VarianceModel | N
     return VarianceModel(max(float(gain), 0.0), max(float(read_var), 0.0), "stack residuals")
 
 
+def std_floor(specular: np.ndarray) -> float:
+    """The float-rounding floor of the standard deviations of a specular image (H, W, 3) or (n, 3), radiance:
+    :data:`FLOOR` × its largest finite ``|value|`` (× 1 when none is finite)."""
+    peak = float(np.nanmax(np.abs(specular))) if np.isfinite(specular).any() else 1.0
+    return FLOOR * peak
+
+
 def specular_variance(capture: Any, specular: np.ndarray, noise: VarianceModel, *,
                       pixels: np.ndarray | None = None) -> np.ndarray:
     """Variance of each pixel and channel of the separated (or given) specular image, radiance².
@@ -201,10 +208,9 @@ def specular_variance(capture: Any, specular: np.ndarray, noise: VarianceModel, 
     Returns
     -------
     ndarray, shape (H, W, 3), or (n, 3) for the ``n`` pixels asked
-        At least ``(FLOOR · peak)²``, ``peak`` the largest ``|specular|``.
+        At least :func:`std_floor` squared: ``(FLOOR · peak)²``, ``peak`` the largest ``|specular|``.
     """
-    peak = float(np.nanmax(np.abs(specular))) if np.isfinite(specular).any() else 1.0
-    floor = (FLOOR * peak) ** 2
+    floor = std_floor(specular) ** 2
     where = (slice(None), slice(None)) if pixels is None else np.nonzero(pixels)
     if capture.specular is not None or capture.stack is None:
         return np.maximum(variance(specular[where], noise), floor)

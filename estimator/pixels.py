@@ -8,7 +8,7 @@ import numpy as np
 
 from ..errors import UserError
 from .censored import censored_specular
-from .noise import FLOOR, VarianceModel, camera_noise, censored_pixels, specular_variance
+from .noise import VarianceModel, camera_noise, censored_pixels, specular_variance, std_floor
 from .observation import Observation
 from ..physics.reflectance import any_channel, channel_sum
 
@@ -86,7 +86,7 @@ class FitPixels(NamedTuple):
         """
         var = specular_variance(capture, self.specular, self.camera, pixels=pixels)
         if self.measured.any():
-            floor = (FLOOR * float(np.nanmax(np.abs(self.specular)))) ** 2  # specular_variance's
+            floor = std_floor(self.specular) ** 2  # specular_variance's
             var[self.measured if pixels is None else self.measured[pixels]] = np.maximum(self.measured_var, floor)
         return var
 

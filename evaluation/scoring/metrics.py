@@ -609,8 +609,7 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
         "lamp_distance_true_m": lamps.pop("lamp_distance_true_m"),
         "sigma_truth": sigma_true,
     }
-    truths = true_lamps(truth)
-    one = len(truths) == 1 and len(estimated_lamps(estimate)) == 1
-    out[MAHALANOBIS_COLUMN] = lamp_mahalanobis_sq(estimate, truths[0]) if one else math.nan
+    one = lamps["n_lamps_true"] == 1 and lamps["n_lamps_found"] == 1  # lamp_scores's counts
+    out[MAHALANOBIS_COLUMN] = lamp_mahalanobis_sq(estimate, true_lamps(truth)[0]) if one else math.nan
     out.update(lamps)
     return out
