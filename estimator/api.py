@@ -6,7 +6,8 @@ import importlib
 import inspect
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from typing import Any
 from pathlib import Path
 
 from ..capture import Capture, read_capture
@@ -108,23 +109,47 @@ def estimate(capture: Capture | str | os.PathLike, *, method: str = "paper", san
         of the wrong type or range, or a plug-in that fails (its exception in
         one line: a plug-in is the user's code).
     """
+    return answer_and_verdict(capture, method=method, sanity=sanity, **options)[1]
+
+
+def answer_and_verdict(capture: Capture | str | os.PathLike, *, method: str = "paper", sanity: bool = True,
+                       **options) -> tuple[Estimate, Estimate]:
+    """:func:`estimate`, returning also the method's own answer before the rules.
+
+    Returns
+    -------
+    answer : Estimate
+        What the method returned (timings, ``geometry`` diagnostics).
+    verdict : Estimate
+        ``answer`` held to the rules of :mod:`nearlight.estimator.sanity` (``answer`` itself when it
+        passes them, or when ``sanity`` is False): what :func:`estimate` returns. A results file
+        (:mod:`nearlight.evaluation.suites.results_file`) keeps the answer, so that a re-score holds it to
+        the same rules with the same verdict.
+    """
     fn = load_method(method)
     options = check_options(fn, options, method=method)
     if isinstance(capture, (str, os.PathLike, Path)):
         capture = read_capture(capture)
     with shared_observations():  # the rules read the observation the method made
         clock = time.perf_counter()
-        result = _run(fn, capture, method, options)
+        answer = _run(fn, capture, method, options)
         geometry = already_shared(surface_geometry, capture)
         if geometry is not None:
-            result.diagnostics.setdefault("geometry", geometry.summary)
-        if not result.timings:
-            result.timings["total"] = time.perf_counter() - clock
-        if sanity and result.ok:
+            answer.diagnostics.setdefault("geometry", geometry.summary)
+        if not answer.timings:
+            answer.timings["total"] = time.perf_counter() - clock
+        verdict = answer
+        if sanity and answer.ok:
             clock = time.perf_counter()
-            result = review(capture, result, {**observation_defaults(fn), **options})
-            result.timings["sanity"] = time.perf_counter() - clock
-    return result
+            verdict = review(capture, answer, rules_options(method, options))
+            verdict.timings["sanity"] = time.perf_counter() - clock
+    return answer, verdict
+
+
+def rules_options(method: str, options: Mapping[str, Any]) -> dict[str, Any]:
+    """The options the sanity rules hold ``method``'s answers with: its own defaults of the options that shape
+    its observation (:func:`observation_defaults`), then ``options``."""
+    return {**observation_defaults(load_method(method)), **options}
 
 
 def observation_defaults(fn: Callable[..., Estimate]) -> dict[str, object]:

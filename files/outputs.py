@@ -165,6 +165,16 @@ def _json_format(path: Path, prefix: str) -> bool:
     return isinstance(doc, dict) and isinstance(doc.get("format"), str) and doc["format"].startswith(prefix)
 
 
+def _first_line_format(path: Path, prefix: str) -> bool:
+    """Whether the first line of ``path`` is a JSON object whose ``format`` starts with ``prefix`` (JSON Lines)."""
+    try:
+        with open(path, "rb") as f:
+            doc = json.loads(f.readline(1 << 16).decode("utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):
+        return False
+    return isinstance(doc, dict) and isinstance(doc.get("format"), str) and doc["format"].startswith(prefix)
+
+
 def _text_starting(*prefixes: str) -> Callable[[Path], bool]:
     def check(path: Path) -> bool:
         try:
@@ -189,6 +199,8 @@ KINDS: dict[str, tuple[str, str, Callable[[Path], bool]]] = {
                         _text_starting("# Paper reproduction")),
     "scorecard-json": (".json", "a scorecard written by `nearlight score`", lambda p: _json_format(p, "nearlight-scorecard/")),
     "scorecard-md": (".md", "a scorecard written by `nearlight score`", _text_starting("# Scorecard")),
+    "results": (".jsonl", "a results file written by `nearlight score`",
+                lambda p: _first_line_format(p, "nearlight-results/")),
     "comparison": (".json", "a comparison written by `nearlight compare --json`", _json_with("baseline", "checks")),
     "provenance": (".json", "a provenance record written by nearlight", _json_with("parts")),
     "report-md": (".md", "a sweep report written by `nearlight report`", _text_starting("# Sweep report")),

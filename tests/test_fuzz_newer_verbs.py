@@ -596,20 +596,277 @@ def _plugin_cases() -> None:
 _plugin_cases()
 
 
+# --------------------------------------------------------------------------- results files and exports
+
+
+def _results_lines(assets: dict[str, Path]) -> list[dict]:
+    """The results file `score --method paper-init` wrote for the fuzz suite (header, then a row per case)."""
+    return [json.loads(s) for s in (assets["score"] / "results.jsonl").read_text().splitlines()]
+
+
+def _ok_line(lines: list[dict]) -> int:
+    """Index of the first row with an answer (a case needs one; the fuzz suite's lamps are near and noise-free)."""
+    ok = [i for i, r in enumerate(lines) if i and r.get("status") == "ok"]
+    assert ok, "paper-init answered no case of the fuzz suite"
+    return ok[0]
+
+
+def _results_argvs(suite: Path, path: Path, folder: Path) -> dict[str, list[str]]:
+    """The two readers of a results file: `--check` (writes nothing) and `--results` (must write nothing either)."""
+    return {"check": ["score", str(suite), "--check", str(path)],
+            "results": ["score", str(suite), "--results", str(path), "--out", str(folder / "score"), "--quiet"]}  # fmt: skip
+
+
+#: (name, where in the file: "header" or "row", key, broken value, the text the error line names).
+RESULTS_BREAKS: list[tuple[str, str, str, Any, str]] = [
+    ("header-format", "header", "format", "nearlight-results/2", "format"),
+    ("header-no-format", "header", "format", DELETE, "format"),
+    ("header-units-mm", "header", "units", "mm", "units"),
+    ("header-frame-camera", "header", "frame", "camera", "frame"),
+    ("header-no-method", "header", "method", DELETE, "method"),
+    ("header-method-empty", "header", "method", "", "method"),
+    ("header-method-number", "header", "method", 5, "method"),
+    ("header-no-machine", "header", "machine", DELETE, "machine"),
+    ("header-version-string", "header", "version", "1", "version"),
+    ("header-other-suite", "header", "suite", "core-v1", "suite"),
+    ("header-other-version", "header", "version", 2, "version"),
+    ("header-other-cases", "header", "cases_hash", "ffffffffffffffff", "cases_hash"),
+    ("header-extra-key", "header", "truth", {"lamp": [0, 0, 1]}, "truth"),
+    ("header-rules-separation", "header", "rules", {"separation": "guess"}, "rules.separation"),
+    ("header-rules-threshold", "header", "rules", {"threshold": 2}, "rules.threshold"),
+    ("header-rules-unknown", "header", "rules", {"reach": 100}, "rules.reach"),
+    ("row-status", "row", "status", "maybe", "status"),
+    ("row-no-status", "row", "status", DELETE, "status"),
+    ("row-no-lamp", "row", "lamp_position", DELETE, "lamp_position"),
+    ("row-lamp-two", "row", "lamp_position", [0.1, 0.2], "lamp_position"),
+    ("row-lamp-four", "row", "lamp_position", [0.1, 0.2, 0.3, 0.4], "lamp_position"),
+    ("row-lamp-string", "row", "lamp_position", ["0.1", "x", 0.3], "lamp_position"),
+    ("row-lamp-dict", "row", "lamp_position", {"x": 0.1}, "lamp_position"),
+    ("row-lamp-mm", "row", "lamp_position", [100.0, 200.0, 450.0], "millimetres?"),
+    ("row-no-ks", "row", "ks", DELETE, "ks"),
+    ("row-ks-scalar", "row", "ks", 0.5, "ks"),
+    ("row-sigma-string", "row", "sigma", "rough", "sigma"),
+    ("row-no-sigma", "row", "sigma", DELETE, "sigma"),
+    ("row-cov-2x2", "row", "covariance", [[1e-6, 0], [0, 1e-6]], "covariance"),
+    ("row-cov-negative", "row", "covariance", [[1e-6, 0, 0], [0, -1e-6, 0], [0, 0, 1e-6]], "not positive definite"),
+    ("row-cov-zero", "row", "covariance", [[0, 0, 0], [0, 0, 0], [0, 0, 0]], "not positive definite"),
+    ("row-cov-asymmetric", "row", "covariance", [[1e-6, 5e-7, 0], [0, 1e-6, 0], [0, 0, 1e-6]], "not symmetric"),
+    ("row-bsdf-model", "row", "bsdf", {"model": "phong", "ks": [1, 1, 1], "sigma": 0.1}, "bsdf"),
+    ("row-bsdf-keys", "row", "bsdf", {"model": "ward", "ks": [1, 1, 1], "sigma": 0.1}, "rho_s"),
+    ("row-bsdf-rough", "row", "bsdf", {"model": "ward", "rho_s": [1, 1, 1], "alpha": -0.1}, "alpha"),
+    ("row-light-distant-bare", "row", "light_model", {"type": "distant"}, "light_model"),
+    ("row-light-area", "row", "light_model", {"type": "area"}, "light_model.type"),
+    ("row-runtime-negative", "row", "runtime_s", -1.0, "runtime_s"),
+    ("row-extra-key", "row", "truth", [0, 0, 1], "truth"),
+    ("row-case-number", "row", "case", 5, "case"),
+    ("row-no-case", "row", "case", DELETE, "case"),
+    ("row-failed-no-reason", "row", "status", "failed", "needs its reason"),
+]
+#: Whole files that are not a results file: (name, bytes, the text the error line names).
+RESULTS_FILES: list[tuple[str, bytes, str]] = [
+    ("empty", b"", "empty"),
+    ("blank-lines", b"\n\n  \n", "empty"),
+    ("binary", bytes(range(256)) * 4, "results.jsonl"),
+    ("latin-1", '{"format": "nearlight-résults/1"}\n'.encode("latin-1"), "results.jsonl"),
+    ("not-json", b"{not json\n", "results.jsonl:1: not a JSON line"),
+    ("a-list", b"[1, 2, 3]\n", "results.jsonl:1"),
+    ("a-scorecard", b'{"format": "nearlight-scorecard/1"}\n', "format"),
+    ("deep", b"[" * 100_000 + b"]" * 100_000 + b"\n", "results.jsonl:1"),
+]
+
+
+def _results_file_cases() -> None:
+    for name, where, key, value, culprit in RESULTS_BREAKS:
+        for verb in ("check", "results"):
+            @case(f"results-{name}-{verb}")
+            def build(folder, assets, where=where, key=key, value=value, culprit=culprit, verb=verb):
+                lines = _results_lines(assets)
+                i = 0 if where == "header" else _ok_line(lines)
+                _set(lines[i], key, value if value is DELETE else copy.deepcopy(value))
+                if key == "status" and value == "failed":
+                    lines[i].pop("reason", None)
+                path = _write(folder / "results.jsonl", "\n".join(json.dumps(r) for r in lines) + "\n")
+                return _results_argvs(assets["suite"], path, folder)[verb], f"results.jsonl:{i + 1}"
+
+            @case(f"results-{name}-{verb}-names-key")
+            def build2(folder, assets, build=build, culprit=culprit):
+                argv, _ = build(folder, assets)
+                return argv, culprit
+
+    for name, data, culprit in RESULTS_FILES:
+        for verb in ("check", "results"):
+            @case(f"results-file-{name}-{verb}")
+            def build(folder, assets, data=data, culprit=culprit, verb=verb):
+                path = _write(folder / "results.jsonl", data)
+                return _results_argvs(assets["suite"], path, folder)[verb], culprit
+
+    for constant in ("NaN", "Infinity", "-Infinity"):
+        for verb in ("check", "results"):
+            @case(f"results-constant-{constant}-{verb}")
+            def build(folder, assets, constant=constant, verb=verb):
+                lines = [json.dumps(r) for r in _results_lines(assets)]
+                i = _ok_line(_results_lines(assets))
+                lines[i] = lines[i].replace('"sigma": ', f'"sigma": {constant}, "was": ', 1)
+                path = _write(folder / "results.jsonl", "\n".join(lines) + "\n")
+                return _results_argvs(assets["suite"], path, folder)[verb], f"results.jsonl:{i + 1}: {constant}"
+
+    for name in ("missing", "twice", "extra"):
+        for verb in ("check", "results"):
+            @case(f"results-case-{name}-{verb}")
+            def build(folder, assets, name=name, verb=verb):
+                lines = _results_lines(assets)
+                ids = [r["case"] for r in lines[1:]]
+                if name == "missing":
+                    lines, culprit = lines[:-1], f"case {ids[-1]}"
+                elif name == "twice":
+                    lines, culprit = [*lines, lines[1]], f"results.jsonl:{len(lines) + 1}: case {ids[0]}"
+                else:
+                    lines = [*lines, {**lines[1], "case": "0123456789abcdef"}]
+                    culprit = f"results.jsonl:{len(lines)}: case 0123456789abcdef"
+                path = _write(folder / "results.jsonl", "\n".join(json.dumps(r) for r in lines) + "\n")
+                return _results_argvs(assets["suite"], path, folder)[verb], culprit
+
+    for verb in ("check", "results"):
+        @case(f"results-file-missing-{verb}")
+        def build(folder, assets, verb=verb):
+            return _results_argvs(assets["suite"], folder / "nosuch.jsonl", folder)[verb], "nosuch.jsonl"
+
+        @case(f"results-file-is-a-folder-{verb}")
+        def build(folder, assets, verb=verb):
+            (folder / "r.jsonl").mkdir()
+            return _results_argvs(assets["suite"], folder / "r.jsonl", folder)[verb], "r.jsonl"
+
+    # the verb's grammar: what --check and --results take, and what they refuse
+    @case("results-check-with-out")
+    def build(folder, assets):
+        return ["score", str(assets["suite"]), "--check", str(assets["score"] / "results.jsonl"), "--out",
+                str(folder / "o")], "--check"  # fmt: skip
+
+    @case("results-with-set")
+    def build(folder, assets):
+        return ["score", str(assets["suite"]), "--results", str(assets["score"] / "results.jsonl"), "--set",
+                "t_max=3", "--out", str(folder / "o")], "--set"  # fmt: skip
+
+    @case("results-without-out")
+    def build(folder, assets):
+        return ["score", str(assets["suite"]), "--results", str(assets["score"] / "results.jsonl")], "--out"
+
+    @case("results-against-an-export")
+    def build(folder, assets):
+        return ["score", str(assets["export"]), "--results", str(assets["score"] / "results.jsonl"), "--out",
+                str(folder / "o"), "--quiet"], "without the truth"  # fmt: skip
+
+    @case("results-out-user-results-jsonl")
+    def build(folder, assets):
+        f = _write(folder / "score" / "results.jsonl", '{"my": "answers"}\n')
+        return _score_argv(assets["suite"], folder / "score"), str(f)
+
+    @case("results-out-holds-another-file-s-run")
+    def build(folder, assets):
+        shutil.copytree(assets["score"], folder / "score")
+        lines = _results_lines(assets)
+        lines[0]["method_version"] = "other"
+        path = _write(folder / "r.jsonl", "\n".join(json.dumps(r) for r in lines) + "\n")
+        return ["score", str(assets["suite"]), "--results", str(path), "--out", str(folder / "score"),
+                "--quiet"], "holds another run"  # fmt: skip
+
+
+#: (where in an export's manifest, broken value, the key the error line names).
+EXPORT_BREAKS: list[tuple[str, Any, str]] = [
+    ("cases.0.path", "../outside", "cases.0.path"),
+    ("cases.0.path", "/etc", "cases.0.path"),
+    ("cases.0.id", "../../victim", "cases.0.id"),
+    ("cases.0.files", {"../../victim.txt": "0" * 64}, "cases.0.files"),
+    ("cases.0.files", {"input/capture.json": "zz"}, "cases.0.files"),
+    ("cases.0.files", {}, "cases.0.files"),
+    ("cases.0.truth", {"lamp": [0, 0, 1]}, "cases.0.truth"),
+    ("cases", [], "cases"),
+    ("cases", "all", "cases"),
+    ("version", "1", "version"),
+    ("suite", "", "suite"),
+    ("cases_hash", DELETE, "cases_hash"),
+]
+
+
+def _export_cases() -> None:
+    for n, (where, value, culprit) in enumerate(EXPORT_BREAKS):
+        for verb in ("verify", "check"):
+            @case(f"export-manifest-{where}-{n}-{verb}")
+            def build(folder, assets, where=where, value=value, culprit=culprit, verb=verb):
+                export = folder / "inputs"
+                shutil.copytree(assets["export"], export)
+                doc = json.loads((export / "manifest.json").read_text())
+                _set(doc, where, value if value is DELETE else copy.deepcopy(value))
+                (export / "manifest.json").write_text(json.dumps(doc))
+                if verb == "verify":
+                    return ["suite", "verify", str(export)], culprit
+                return ["score", str(export), "--check", str(assets["score"] / "results.jsonl")], culprit
+
+    for key in ("id", "path"):
+        @case(f"export-manifest-two-cases-one-{key}")
+        def build(folder, assets, key=key):
+            export = folder / "inputs"
+            shutil.copytree(assets["export"], export)
+            doc = json.loads((export / "manifest.json").read_text())
+            doc["cases"][1][key] = doc["cases"][0][key]
+            (export / "manifest.json").write_text(json.dumps(doc))
+            return ["suite", "verify", str(export)], "names two cases"
+
+    @case("export-verify-against")
+    def build(folder, assets):
+        return ["suite", "verify", str(assets["export"]), "--against", str(assets["suite"])], "--against"
+
+    @case("export-out-user-folder")
+    def build(folder, assets):
+        return ["suite", "export", str(assets["suite"]), "--out", str(_user_folder(folder))], "not empty"
+
+    @case("export-out-is-a-file")
+    def build(folder, assets):
+        f = _write(folder / "notes.txt", "x")
+        return ["suite", "export", str(assets["suite"]), "--out", str(f)], "notes.txt"
+
+    @case("export-out-an-earlier-export")
+    def build(folder, assets):
+        shutil.copytree(assets["export"], folder / "inputs")
+        return ["suite", "export", str(assets["suite"]), "--out", str(folder / "inputs")], "not empty"
+
+    @case("export-of-an-export")
+    def build(folder, assets):
+        return ["suite", "export", str(assets["export"]), "--out", str(folder / "again")], "manifest.json"
+
+    @case("export-of-a-damaged-suite")
+    def build(folder, assets):
+        suite = _copy_suite(folder, assets)
+        _, doc = _manifest(suite)
+        exr = suite / doc["cases"][0]["path"] / "input" / "capture.exr"
+        exr.write_bytes(exr.read_bytes()[:-10])
+        return ["suite", "export", str(suite), "--out", str(folder / "inputs")], "capture.exr"
+
+    @case("export-of-a-user-folder")
+    def build(folder, assets):
+        return ["suite", "export", str(_user_folder(folder)), "--out", str(folder / "inputs")], "manifest.json"
+
+
+_results_file_cases()
+_export_cases()
+
+
 # --------------------------------------------------------------------------- running the cases
 
 
 @pytest.fixture(scope="module")
 def assets(tmp_path_factory) -> dict[str, Path]:
-    """A built tiny suite, a score folder of it, and a finished tiny sweep (built once)."""
+    """A built tiny suite, a score folder of it (with its results file), its export, and a finished tiny sweep
+    (built once)."""
     from nearlight.evaluation.engine.run import run_sweep
     from nearlight.evaluation.engine.sweep import load_sweep
 
     d = tmp_path_factory.mktemp("fuzz-newer-assets")
     assert main(["suite", "build", str(_pinned(d, SUITE)), "--out", str(d / "suite"), "--quiet", "--no-cache"]) == 0
     assert main(_score_argv(d / "suite", d / "score")) == 0
+    assert main(["suite", "export", str(d / "suite"), "--out", str(d / "export")]) == 0
     run_sweep(load_sweep(_write(d / "sweep.yaml", _dump(SWEEP))), d / "results", progress=False)
-    return {"suite": d / "suite", "score": d / "score", "results": d / "results"}
+    return {"suite": d / "suite", "score": d / "score", "results": d / "results", "export": d / "export"}
 
 
 @pytest.fixture(autouse=True)

@@ -12,6 +12,7 @@ will choose, :func:`nearlight.generator.llvm.planned_variant`);
 from __future__ import annotations
 
 import functools
+import os
 import platform
 import subprocess
 from collections.abc import Mapping
@@ -67,6 +68,12 @@ def _cpu() -> tuple[str, list[str]]:
     except OSError:
         pass
     return model, [f for f in CPU_FLAGS if f in flags]
+
+
+def machine() -> str:
+    """One line naming the machine: CPU model, cores, operating system and architecture (a scorecard's
+    ``machine``, as a results file's header states it)."""
+    return f"{_cpu()[0]}, {os.cpu_count()} cores, {platform.system()} {platform.machine()}"
 
 
 def collect() -> dict[str, Any]:

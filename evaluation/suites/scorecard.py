@@ -34,21 +34,25 @@ import numpy as np
 import pandas as pd
 
 from ...capture import read_capture
+from ...estimator.api import answer_and_verdict, rules_options
+from ...estimator.sanity import UnsupportedEstimate, review
 from ...errors import UserError
 from ...files.atomic import write_json, write_text
-from ...files.digests import stable_hash
+from ...files.digests import file_sha256, stable_hash
 from ...files.figures import pyplot, save_png
 from ...files.jsonable import jsonable
 from ...files.markdown import markdown_table
 from ...files.outputs import check_file_out, check_folder
-from ..engine.environment import code_version
+from ..engine.environment import code_version, machine
 from ..engine.provenance import record
 from ..engine.store import SWEEP_JSON, ResultStore, read_sweep_json, set_aside_damaged_parts
 from ..engine.sweep import check_method
-from ..engine.tasks import blank_row, failed_row, run_method
+from ..engine.tasks import blank_row, failed_row
 from ..engine.workers import completed, executing
 from ..scoring.calibration import MAHALANOBIS_COLUMN, coverage, coverage_cells
 from ..scoring.metrics import ESTIMATE_COLUMNS, INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
+from .results_file import RESULTS_JSONL, estimate_row, read_results, row_estimate, write_results
+from .results_file import header as results_header
 from .suite import INPUT, MANIFEST, TRUTH, checksum_problems, read_manifest, strip_truth
 
 #: Metric -> (thresholds, as the metric's values; label of a threshold). The lamp: % of the distance from
@@ -67,6 +71,8 @@ SCORECARD_JSON, SCORECARD_MD, SCORECARD_PNG = "scorecard.json", "scorecard.md", 
 #: First line of a scorecard's Markdown, and the JSON's ``format``: how nearlight recognises its own files.
 MD_TITLE = "# Scorecard"
 FORMAT = "nearlight-scorecard/1"
+#: A score row's line of a results file (JSON text), from which ``results.jsonl`` is written.
+ANSWER_COLUMN = "answer"
 
 
 def score_case(case: Mapping[str, Any], *, method: str, options: Mapping[str, Any]) -> dict[str, Any]:
@@ -75,7 +81,7 @@ def score_case(case: Mapping[str, Any], *, method: str, options: Mapping[str, An
     Parameters
     ----------
     case : mapping
-        ``folder`` (the case's folder in the suite).
+        ``folder`` (the case's folder in the suite) and ``id``.
     method : str
         Built-in name or ``module:function``.
     options : mapping
@@ -85,21 +91,54 @@ def score_case(case: Mapping[str, Any], *, method: str, options: Mapping[str, An
     -------
     dict
         ``status`` (``ok``; ``failed``: the estimate refused by :mod:`nearlight.estimator.sanity`; ``error``), ``error``, the :data:`METRICS` and ``INFO_COLUMNS``
-        (NaN when not computed), ``runtime_s`` (s, the method alone). Never raises.
+        (NaN when not computed), ``runtime_s`` (s, the method alone), and :data:`ANSWER_COLUMN`: the case's
+        line of a results file (:func:`~nearlight.evaluation.suites.results_file.estimate_row`, JSON). Never raises.
     """
     row = blank_row()
-    stage = "read"
+    stage, answer, verdict = "read", None, None
     try:
         seen = strip_truth(read_capture(Path(case["folder"]) / INPUT))
         stage = "estimate"
         t0 = time.perf_counter()
-        est = run_method(seen, method, options)
+        answer, verdict = answer_and_verdict(seen, method=method, **options)
         row["runtime_s"] = time.perf_counter() - t0
-        row.update(estimate_columns(est))
+        if not verdict.ok:
+            raise UnsupportedEstimate(verdict)
         stage = "score"
-        row.update(score(read_capture(Path(case["folder"]) / TRUTH), est))
+        row = _graded(row, verdict, Path(case["folder"]))
     except Exception as exc:  # a failing case is a row (a miss), not a crashed run
+        row = failed_row(row, stage, exc)
+    error = row["error"] if stage != "score" and row["status"] != "ok" else None
+    line = estimate_row(case["id"], answer, verdict, runtime_s=None, error=error)  # its time: the row's runtime_s
+    return {**row, ANSWER_COLUMN: json.dumps(line, allow_nan=False)}
+
+
+def score_reported(case: Mapping[str, Any], *, answer: Mapping[str, Any], method: str,
+                   rules: Mapping[str, Any]) -> dict[str, Any]:  # fmt: skip
+    """Score one case's row of a results file: a ``failed`` row is a failure with its reason, an ``ok`` row the
+    :class:`~nearlight.estimator.Estimate` it states (:func:`~nearlight.evaluation.suites.results_file.row_estimate`),
+    held to the rules of :mod:`nearlight.estimator.sanity` as a plug-in's answer is (``rules``: the header's
+    ``observation``), then scored as :func:`score_case` scores. Its ``runtime_s`` is the reported one. Never raises."""
+    row = blank_row()
+    row["runtime_s"] = answer.get("runtime_s", math.nan)
+    if answer["status"] != "ok":
+        return {**row, "status": "failed", "error": answer["reason"]}
+    stage = "review"
+    try:
+        seen = strip_truth(read_capture(Path(case["folder"]) / INPUT))
+        verdict = review(seen, row_estimate(answer, method), rules)
+        if not verdict.ok:
+            raise UnsupportedEstimate(verdict)
+        stage = "score"
+        return _graded(row, verdict, Path(case["folder"]))
+    except Exception as exc:
         return failed_row(row, stage, exc)
+
+
+def _graded(row: dict[str, Any], verdict: Any, folder: Path) -> dict[str, Any]:
+    """``row`` with the (accepted) estimate's columns and its scores against the case's truth."""
+    row = {**row, **estimate_columns(verdict)}
+    row.update(score(read_capture(folder / TRUTH), verdict))
     return row
 
 
@@ -114,33 +153,46 @@ def _run_hash(manifest: Mapping[str, Any], method: str, options: Mapping[str, An
 
 def check_score_out(out: str | Path, manifest: Mapping[str, Any], method: str, options: Mapping[str, Any]) -> Path:
     """Raise :class:`UserError` unless ``out`` may hold this score run: a folder (or creatable) that holds
-    no results or this run's, and whose scorecard files, when there, are nearlight's. Nothing is written."""
+    no results or this run's, and whose scorecard and results files, when there, are nearlight's. Nothing is
+    written. ``method`` and ``options`` name the run (for a results file: its sha256)."""
     out = check_folder(out, what="score folder")
     if (out / SWEEP_JSON).exists():
         old = read_sweep_json(out)
         if old.get("sweep_hash") != _run_hash(manifest, method, options):
             raise UserError(f"{out}: holds another run ({old.get('name')!r}); choose another --out or remove it")
-    for name, kind in ((SCORECARD_PNG, "png"), (SCORECARD_JSON, "scorecard-json"), (SCORECARD_MD, "scorecard-md")):
-        check_file_out(out / name, kind)  # files.outputs.KINDS: how nearlight knows its own scorecard files
+    for name, kind in ((SCORECARD_PNG, "png"), (SCORECARD_JSON, "scorecard-json"), (SCORECARD_MD, "scorecard-md"),
+                       (RESULTS_JSONL, "results")):  # fmt: skip
+        check_file_out(out / name, kind)  # files.outputs.KINDS: how nearlight knows its own files
     return out
 
 
+def suite_cases(suite_dir: Path, manifest: Mapping[str, Any]) -> list[tuple[str, Path]]:
+    """(case id, input capture folder) of every case of a built suite, in order."""
+    return [(c["id"], suite_dir / c["path"] / INPUT) for c in manifest["cases"]]
+
+
 def score_suite(
-    suite_dir: str | Path, out: str | Path, *, method: str, options: Mapping[str, Any] | None = None,
-    workers: int = 1, scheduler: Any = None, progress: bool = True, command: str | None = None,
+    suite_dir: str | Path, out: str | Path, *, method: str | None = None, options: Mapping[str, Any] | None = None,
+    results: str | Path | None = None, workers: int = 1, scheduler: Any = None, progress: bool = True,
+    command: str | None = None,
 ) -> tuple[dict[str, Any] | None, dict[str, int]]:  # fmt: skip
-    """Score ``method`` on every case of the built suite in ``suite_dir`` (resumed in ``out``).
+    """Score ``method`` (or the answers of a ``results`` file) on every case of the built suite in ``suite_dir``
+    (resumed in ``out``).
 
     Parameters
     ----------
     suite_dir : path-like
         A built suite (``manifest.json``); every file's sha256 is checked first.
     out : path-like
-        Score folder (results rows, then the scorecard).
-    method : str
-        Built-in name or ``module:function``.
+        Score folder (results rows, then the scorecard; with ``method``, also ``results.jsonl``: its
+        answers as a results file).
+    method : str, optional
+        Built-in name or ``module:function``, run here.
     options : mapping, optional
         Method options.
+    results : path-like, optional
+        Instead of ``method``: a results file (:mod:`~nearlight.evaluation.suites.results_file`) of answers
+        a method gave elsewhere; the scorecard is marked ``self_reported``, its run times as reported.
     workers, scheduler, progress
         As :func:`nearlight.evaluation.engine.run.run_sweep`.
     command : str, optional
@@ -155,31 +207,46 @@ def score_suite(
     counts : dict
         ``ran``, ``skipped``, ``failed``.
     """
+    if (method is None) == (results is None):
+        raise ValueError("score_suite: give method or results, not both")
     options = dict(options or {})
     suite_dir = Path(suite_dir)
     manifest = read_manifest(suite_dir)
-    check_method(method, options, where="--method")
-    out = check_score_out(out, manifest, method, options)
+    reported = None
+    if results is not None:
+        head, answers = read_results(results, manifest, suite_cases(suite_dir, manifest))
+        reported = {"file": Path(results).name, "sha256": file_sha256(results), "method_version": head["method_version"],
+                    "machine": head["machine"]}  # fmt: skip
+        label, run_method_name, run_options = head["method"], "results", {"sha256": reported["sha256"]}
+        rules = {k: v for k, v in head["rules"].items() if v is not None}
+    else:
+        check_method(method, options, where="--method")
+        label, run_method_name, run_options = method_label(method, options), method, options
+    out = check_score_out(out, manifest, run_method_name, run_options)
     problems = checksum_problems(suite_dir, manifest)
     if problems:
         more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
         raise UserError(problems[0] + more + "; rebuild or re-download the suite")
     _check_category_names(suite_dir, manifest)
     t_start = time.perf_counter()
-    label = method_label(method, options)
     cats = list(manifest["categories"])
     axes = list(manifest["cases"][0]["categories"]) if manifest["cases"] else []
     store = ResultStore(out, name=f"score {manifest['suite']} v{manifest['version']} {label}",
-                        sweep_hash=_run_hash(manifest, method, options), n_tasks=len(manifest["cases"]), axes=axes)  # fmt: skip
+                        sweep_hash=_run_hash(manifest, run_method_name, run_options), n_tasks=len(manifest["cases"]),
+                        axes=axes)  # fmt: skip
     for moved in set_aside_damaged_parts(out):  # as a sweep does: a re-run recomputes a damaged row
         print(f"nearlight: note: a damaged result part was moved to {moved}; its case is scored again", file=sys.stderr)
     done = store.done_ids()
     todo = [c for c in manifest["cases"] if c["id"] not in done]
     version = code_version()
     failed = 0
-    with executing(workers, scheduler, running=f"method {method}") as executor:
-        futs = {executor.submit(score_case, {"folder": str(suite_dir / c["path"])}, method=method,
-                                options=options): c for c in todo}  # fmt: skip
+    with executing(workers, scheduler, running=f"method {label}") as executor:
+        if reported is None:
+            futs = {executor.submit(score_case, {"folder": str(suite_dir / c["path"]), "id": c["id"]}, method=method,
+                                    options=options): c for c in todo}  # fmt: skip
+        else:
+            futs = {executor.submit(score_reported, {"folder": str(suite_dir / c["path"])}, answer=answers[c["id"]],
+                                    method=label, rules=rules): c for c in todo}  # fmt: skip
         for fut in completed(executor, futs, desc=f"{manifest['suite']}: {label}", unit="case", progress=progress,
                              total=len(manifest["cases"]), initial=len(manifest["cases"]) - len(todo)):  # fmt: skip
             c = futs[fut]
@@ -193,20 +260,36 @@ def score_suite(
     if df is None:
         return None, counts
     card = scorecard(df, manifest, label=label, categories=cats)
+    card["machine"] = machine() if reported is None else reported["machine"]
+    if reported is not None:
+        card["self_reported"] = reported
     if todo:
         card["wall_s"] = time.perf_counter() - t_start
     elif (out / SCORECARD_JSON).is_file():  # a re-run that scored nothing keeps the wall time of the run that did
         card["wall_s"] = json.loads((out / SCORECARD_JSON).read_text()).get("wall_s")
     if todo:  # a re-run that scored nothing leaves the record of the run that made the rows
-        record(out, command=command or f"nearlight score {suite_dir} --method {method} --out {out}",
-               entry_modules=[__name__])  # fmt: skip
+        default = f"--method {method}" if reported is None else f"--results {results}"
+        record(out, command=command or f"nearlight score {suite_dir} {default} --out {out}", entry_modules=[__name__])
+    if reported is None and ANSWER_COLUMN in df.columns and df[ANSWER_COLUMN].map(lambda a: isinstance(a, str)).all():
+        # (rows resumed from a run made before results files have no answer: no results.jsonl then)
+        _write_answers(out / RESULTS_JSONL, df, manifest, label=label, rules=rules_options(method, options))
     write_scorecard(card, out)
     return card, counts
 
 
+def _write_answers(path: Path, df: pd.DataFrame, manifest: Mapping[str, Any], *, label: str,
+                   rules: Mapping[str, Any]) -> Path:  # fmt: skip
+    """The run's answers as a results file, in the suite's order (``nearlight score --results`` on it gives the
+    same scorecard, run times aside)."""
+    lines = {str(i): {**json.loads(str(a)), **({"runtime_s": float(t)} if np.isfinite(t) else {})}
+             for i, a, t in zip(df["task_id"], df[ANSWER_COLUMN], df["runtime_s"].astype(float))}
+    head = results_header(manifest, method=label, method_version=code_version(), machine=machine(), rules=rules)
+    return write_results(path, head, [lines[c["id"]] for c in manifest["cases"]])
+
+
 #: Columns of a score row that are not the case's categories (a category of the same name would replace them).
 ROW_COLUMNS = ("task_id", "task_index", "sweep", "seed", "noisy", "method", "render_key", "renderer", "code_version",
-               "status", "error", "runtime_s", LOBE_COLUMN, *METRICS, *INFO_COLUMNS, *ESTIMATE_COLUMNS)  # fmt: skip
+               "status", "error", "runtime_s", LOBE_COLUMN, *METRICS, *INFO_COLUMNS, *ESTIMATE_COLUMNS, ANSWER_COLUMN)  # fmt: skip
 
 
 def _check_category_names(suite_dir: Path, manifest: Mapping[str, Any]) -> None:
@@ -311,7 +394,9 @@ def scorecard_markdown(card: Mapping[str, Any]) -> str:
         f"{card['cases']} cases (suite cases {card['cases_hash']}), {card['failed']} failed (misses at every "
         f"threshold). Method time: median {_fmt(card['runtime_s']['median'], False)} s per case, "
         f"{_fmt(card['runtime_s']['total'], False)} s in all"
-        + (f"; wall {card['wall_s']:.1f} s." if card.get("wall_s") else "."),
+        + (f"; wall {card['wall_s']:.1f} s." if card.get("wall_s") else ".")
+        + (f" Machine: {card['machine']}." if card.get("machine") else ""),
+        *_self_reported_lines(card),
         "",
         "Recall: % of the cases whose error is below each threshold (a failure or an undefined error is a miss). "
         "Median with its 95 % bootstrap interval (misses count as ∞).",
@@ -341,6 +426,17 @@ def scorecard_markdown(card: Mapping[str, Any]) -> str:
     if card.get("errors"):
         lines += ["", "## Failures (first distinct messages)", ""] + [f"- `{e}`" for e in card["errors"]]
     return "\n".join(lines) + "\n"
+
+
+def _self_reported_lines(card: Mapping[str, Any]) -> list[str]:
+    """The scorecard's line on a self-reported run (none for a method nearlight ran)."""
+    rep = card.get("self_reported")
+    if not rep:
+        return []
+    return ["", f"**Self-reported**: the answers of `{rep['file']}` (sha256 {rep['sha256'][:16]}…), method version "
+                f"{rep['method_version']}, run elsewhere; its run times as the file reports them, not measured. Every "
+                "answer was held to nearlight's rules (an estimate the data do not support is a failure), as a "
+                "plug-in's is."]
 
 
 def scorecard_figure(card: Mapping[str, Any], path: Path) -> Path:

@@ -569,6 +569,9 @@ def read_manifest_file(path: str | Path) -> dict[str, Any]:
         doc = json.loads(path.read_bytes().decode("utf-8"))
     except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise UserError(f"{path}: not a readable suite manifest ({one_line(exc)[:120]})") from None
+    if isinstance(doc, dict) and doc.get("format") == "nearlight-suite-inputs/1":  # export.FORMAT
+        raise UserError(f"{path}: an export of a suite's inputs, without the truth to score against; score with the "
+                        "built suite (nearlight suite build)")  # fmt: skip
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise UserError(f"{path}: format: expected {FORMAT!r} (a manifest written by nearlight suite build)")
     if doc.get("complete") is False:
@@ -619,17 +622,20 @@ def _manifest_models() -> tuple[type, type]:
         complete: Literal[True]
         cases: list[CaseEntry] = Field(min_length=1)
 
-        @field_validator("cases")
-        @classmethod
-        def _unique(cls, v: list) -> list:
-            for key in ("id", "path"):
-                seen = [getattr(c, key) for c in v]
-                twice = next((x for x in seen if seen.count(x) > 1), None)
-                if twice is not None:
-                    raise ValueError(f"{key} {twice!r} names two cases")
-            return v
+        _unique = field_validator("cases")(unique_cases)
 
     return Manifest, CaseEntry
+
+
+def unique_cases(cls: type, cases: list) -> list:
+    """A pydantic validator of a manifest's ``cases`` (a built suite's or an export's): no ``id`` and no ``path``
+    names two cases."""
+    for key in ("id", "path"):
+        seen = [getattr(c, key) for c in cases]
+        twice = next((x for x in seen if seen.count(x) > 1), None)
+        if twice is not None:
+            raise ValueError(f"{key} {twice!r} names two cases")
+    return cases
 
 
 

@@ -94,7 +94,7 @@ def test_oracle_reaches_full_recall_at_every_threshold(suite, plugins, tmp_path,
     assert _score(suite, out, "nl_score_plugins:oracle") == 0
     printed = capsys.readouterr().out.splitlines()
     assert printed[0].startswith("nl_score_plugins:oracle on tiny-v1 v1: lamp recall <0.5%: 100%")
-    assert printed[1:] == [str(out / n) for n in ("scorecard.md", "scorecard.json", "scorecard.png")]
+    assert printed[1:] == [str(out / n) for n in ("scorecard.md", "scorecard.json", "scorecard.png", "results.jsonl")]
     card = _card(out)
     assert card["cases"] == N_CASES and card["failed"] == 0
     assert [(g["category"], g["value"]) for g in card["groups"]] == [
