@@ -22,7 +22,10 @@ What it computes, per pixel centre, with direct light only (the paper's model, a
 - **the lamp** (:mod:`nearlight.generator.lamp`): radiant intensity ``I`` per channel,
   times ``max(0, k·a)^k`` for a beam, over ``r²``, through its filter: an ideal linear
   polarizer, or a diattenuator of extinction ratio ε (transmittances 1 and 1/ε), along
-  Korger's effective axis ``t = k × â⊥`` of each ray ``k``;
+  Korger's effective axis ``t = k × â⊥`` of each ray ``k``. A sphere lamp (``radius`` > 0,
+  radiance ``I/(π a²)``) is integrated over the cone it subtends by a product quadrature
+  refined until two successive rules agree to 1e-4 (:func:`sphere_nodes`; Mitsuba samples
+  the same cone by Monte Carlo), its shadows soft where the object shadows itself;
 - **the specular lobe** (:mod:`nearlight.physics.reflectance`, ``f·cos θi``) and its
   Mueller matrix in the microfacet's s/p frames: ``ideal``, the mirror (the field ``e``
   leaves as ``e − 2(e·h)h``); ``fresnel``, the dielectric's amplitude coefficients
@@ -41,7 +44,7 @@ Mitsuba's: ``I(θ) = ½ (S0 + S1 cos 2θ + S2 sin 2θ)``.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -83,9 +86,6 @@ def not_covered(scene: Scene) -> list[str]:
         why.append("material.model mitsuba: a Mitsuba BSDF (no closed form)")
     if scene.capture.max_depth > 2 and scene.object.type not in CONVEX:
         why.append(f"capture.max_depth {scene.capture.max_depth}: interreflections of a concave object (Monte Carlo)")
-    for i, lamp in enumerate(scene.lamps):
-        if lamp.radius > 0:
-            why.append(f"{lamp_name(i, len(scene.lamps))}.radius {lamp.radius:g}: a sphere lamp (Mitsuba's Monte Carlo)")
     return why
 
 
@@ -317,9 +317,15 @@ def beam(spec: LampSpec, facing: np.ndarray, k: np.ndarray) -> np.ndarray:
     return np.maximum(_dot(k, a / np.linalg.norm(a)), 0.0) ** spec.anisotropy_k
 
 
-def lamp_stokes(scene: Scene, i: int, P: np.ndarray, N: np.ndarray, up: np.ndarray, lit: np.ndarray,
-                sign: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def lamp_stokes(scene: Scene, i: int, P: np.ndarray, N: np.ndarray, up: np.ndarray,
+                blocked: Callable[[np.ndarray], np.ndarray] | None,
+                sign: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
     """Specular and diffuse Stokes ``(3, n, 3)`` (S0–S2, points, RGB) that lamp ``i`` sends to the camera.
+
+    A point lamp in closed form; a sphere lamp (``radius`` > 0) by a product quadrature over the cone of
+    directions it subtends from each point (:func:`sphere_nodes`: Gauss–Legendre in cos θ, the midpoint rule in φ),
+    each pixel's node count doubled until two successive rules agree to :data:`QUADRATURE_RTOL` of the brightest
+    value (:func:`_sphere_lamp`).
 
     Parameters
     ----------
@@ -330,18 +336,133 @@ def lamp_stokes(scene: Scene, i: int, P: np.ndarray, N: np.ndarray, up: np.ndarr
         Surface points (m) and unit shading normals.
     up : ndarray, shape (3,)
         The camera's up (``to_world``'s second column): the analyzer frame's reference.
-    lit : ndarray of bool, shape (n,)
-        Points the lamp reaches (not shadowed).
+    blocked : callable or None
+        ``blocked(idx, lamp_points)`` -> bool: whether the segment from each point ``P[idx]`` to its lamp point
+        meets the object (None: a convex object, never).
     sign : ndarray, shape (n,), or None
         The texture's checker sign, or None (untextured).
+
+    Returns
+    -------
+    specular, diffuse : ndarray, shape (3, n, 3)
+    error : float
+        The quadrature's error estimate, relative to the brightest specular or diffuse value: the largest
+        change between a pixel's last two rules (0 for a point lamp).
+    """
+    spec, mat = scene.lamps[i], scene.material
+    everywhere = np.arange(len(P))
+    if spec.radius == 0:
+        lamp = np.broadcast_to(np.asarray(spec.position, float), P.shape)
+        spec_s, diff = _unit_stokes(scene, i, P, N, up, lamp, 1.0 / np.sum((lamp - P) ** 2, -1), blocked, sign,
+                                    everywhere)  # fmt: skip
+        error = 0.0
+    else:
+        spec_s, diff, error = _sphere_lamp(scene, i, P, N, up, blocked, sign)
+    intensity = np.asarray(spec.intensity, float)
+    specular = spec_s[..., None] * (intensity * np.asarray(mat.specular, float))
+    kd = np.broadcast_to(np.asarray(mat.kd, float), (len(P), 3))
+    if sign is not None:
+        kd = textured(kd, mat.texture.kd_contrast, sign[:, None])
+    diffuse = np.zeros((3, len(P), 3))
+    diffuse[0] = (diff / np.pi)[:, None] * kd * intensity
+    return specular, diffuse, error
+
+
+def _sphere_lamp(scene: Scene, i: int, P: np.ndarray, N: np.ndarray, up: np.ndarray,
+                 blocked: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
+                 sign: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
+    """:func:`_unit_stokes` of a sphere lamp, integrated by :func:`sphere_nodes` pixel by pixel: each pixel's rule
+    doubles (2, 4, 8... nodes in cos θ) until two successive rules agree to :data:`QUADRATURE_RTOL` of the
+    brightest value of the first rule, or :data:`QUADRATURE_MAX_NODES`; returns the largest change left."""
+    centre, radius = np.asarray(scene.lamps[i].position, float), scene.lamps[i].radius
+
+    def rule(idx: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+        spec_s, diff = np.zeros((3, len(idx))), np.zeros(len(idx))
+        for lamp, weight in sphere_nodes(P[idx], centre, radius, n):
+            s_j, d_j = _unit_stokes(scene, i, P[idx], N[idx], up, lamp, weight, blocked,
+                                    None if sign is None else sign[idx], idx)  # fmt: skip
+            spec_s += s_j
+            diff += d_j
+        return spec_s, diff
+
+    active, n = np.arange(len(P)), 2
+    spec_s, diff = rule(active, n)
+    peak = max(float(np.abs(spec_s).max()), float(diff.max()), 1e-300)
+    error = 0.0
+    while len(active):
+        n *= 2
+        fine_s, fine_d = rule(active, n)
+        change = np.maximum(np.abs(fine_s - spec_s[:, active]).max(0), np.abs(fine_d - diff[active])) / peak
+        spec_s[:, active], diff[active] = fine_s, fine_d
+        done = change <= QUADRATURE_RTOL
+        if n >= QUADRATURE_MAX_NODES:
+            error = float(change.max(initial=0.0))
+            break
+        error = max(error, float(change[done].max(initial=0.0)))
+        active = active[~done]
+    return spec_s, diff, error
+
+
+#: Relative agreement of two successive sphere-lamp quadratures at which the finer one is kept.
+QUADRATURE_RTOL = 1e-4
+#: Most Gauss–Legendre nodes in cos θ (twice as many in φ) a sphere lamp's quadrature may use.
+QUADRATURE_MAX_NODES = 32
+
+
+def sphere_nodes(P: np.ndarray, centre: np.ndarray, radius: float, n: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Quadrature nodes over a sphere lamp as each point sees it: its points and weights.
+
+    The lamp (a uniform Lambertian sphere of radiant intensity ``I``: radiance ``I/(π a²)``) subtends from ``P`` the
+    cone of half-angle ``θmax`` (``cos θmax = √(1 − (a/d)²)``); Mitsuba samples it uniformly in solid angle
+    (:mod:`nearlight.generator.lamp`). Here ``n`` Gauss–Legendre nodes in ``cos θ ∈ [cos θmax, 1]`` times ``2n``
+    midpoint nodes in φ: weights summing to the cone's solid angle ``2π (1 − cos θmax)``, exact for polynomials of
+    degree ``2n − 1`` in ``cos θ`` and trigonometric ones of degree ``2n − 1`` in φ.
+
+    Yields
+    ------
+    points : ndarray, shape (m, 3)
+        The nearest point of the sphere along each node's direction (where its shadow ray ends).
+    weight : ndarray, shape (m,)
+        The node's solid angle times the radiance per unit intensity, ``dω / (π a²)``: what multiplies
+        ``f cos θi`` (and the beam, and the filter) for the point lamp's ``1/r²``.
+    """
+    to = centre - P
+    dc = np.linalg.norm(to, axis=-1)
+    axis = to / dc[..., None]
+    cos_max = np.sqrt(np.maximum(1.0 - (radius / dc) ** 2, 0.0))
+    helper = np.where(np.abs(axis[..., :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    a = _unit(np.cross(axis, helper))
+    b = np.cross(axis, a)
+    x, w = np.polynomial.legendre.leggauss(n)
+    for xi, wi in zip(x, w):
+        cos_t = cos_max + (1.0 - cos_max) * (xi + 1.0) / 2.0
+        sin_t = np.sqrt(np.maximum(1.0 - cos_t * cos_t, 0.0))
+        for j in range(2 * n):
+            phi = 2.0 * np.pi * (j + 0.5) / (2 * n)
+            d = cos_t[..., None] * axis + sin_t[..., None] * (np.cos(phi) * a + np.sin(phi) * b)
+            along = _dot(d, to)  # the ray's entry into the sphere
+            t = along - np.sqrt(np.maximum(radius * radius - (dc * dc - along * along), 0.0))
+            weight = wi * (1.0 - cos_max) / 2.0 * (2.0 * np.pi / (2 * n)) / (np.pi * radius * radius)
+            yield P + t[..., None] * d, weight
+
+
+def _unit_stokes(scene: Scene, i: int, P: np.ndarray, N: np.ndarray, up: np.ndarray, lamp: np.ndarray,
+                 weight: np.ndarray, blocked: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
+                 sign: np.ndarray | None, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Light from lamp ``i`` arriving at ``P`` from the points ``lamp`` (n, 3), per unit intensity and colour.
+
+    Returns the specular Stokes ``(3, n)`` per unit specular colour and the diffuse irradiance factor ``(n,)``
+    (the filter's S0 · beam · cos θi · ``weight``) per unit albedo; ``weight`` is ``1/r²`` for a point lamp.
+    ``idx``: which of the render's points ``P`` are (for ``blocked(idx, lamp)``).
     """
     spec, mat = scene.lamps[i], scene.material
     facing = scene.facing(i)
-    camera = np.asarray(scene.camera.position, float)
-    g = shading_geometry(P, N, camera, spec.position)
-    ok = lit & (g.cos_i > 0) & (g.cos_r > 0)
+    g = shading_geometry(P, N, np.asarray(scene.camera.position, float), lamp)
+    ok = (g.cos_i > 0) & (g.cos_r > 0)
+    if blocked is not None:
+        ok &= ~blocked(idx, lamp)
     k = -g.light
-    power = np.where(ok, beam(spec, facing, k) * np.clip(g.cos_i, 0, None) / g.r**2, 0.0)  # per unit intensity
+    power = np.where(ok, beam(spec, facing, k) * np.clip(g.cos_i, 0, None) * weight, 0.0)
     x = _unit(np.cross(-g.view, up))
     y = np.cross(g.view, x)
     fields = lamp_fields(spec, facing, k)
@@ -357,15 +478,8 @@ def lamp_stokes(scene: Scene, i: int, P: np.ndarray, N: np.ndarray, up: np.ndarr
     for e, w in reflected_states(k, g.view, fields, fresnel_eta=eta):
         ex, ey = _dot(e, x), _dot(e, y)
         spec_s += w * np.stack([ex * ex + ey * ey, ex * ex - ey * ey, 2 * ex * ey])  # |e|²·(1, cos 2β, sin 2β)
-    intensity = np.asarray(spec.intensity, float)
-    specular = (spec_s * (power * shape))[..., None] * (intensity * np.asarray(mat.specular, float))
-    kd = np.broadcast_to(np.asarray(mat.kd, float), (len(P), 3))
-    if sign is not None:
-        kd = textured(kd, mat.texture.kd_contrast, sign[:, None])
     incident = sum(w for _, w in fields)  # the filter's S0 per unit intensity: ½(1 + 1/ε)
-    diffuse = np.zeros((3, len(P), 3))
-    diffuse[0] = (incident * power / np.pi)[:, None] * kd * intensity
-    return specular, diffuse
+    return spec_s * (power * shape), incident * power
 
 
 # --------------------------------------------------------------------------- the render
@@ -379,7 +493,8 @@ def closed_form_arrays(scene: Scene) -> dict[str, np.ndarray]:
     dict
         ``P``, ``N`` ``(H, W, 3)`` (NaN off the object), ``to_world`` ``(4, 4)``, ``stokes_specular``,
         ``stokes_diffuse``, ``stokes_full`` ``(3, H, W, 3)`` float32, and with several lamps each lamp's
-        ``stokes_<part>_lamp<i>``.
+        ``stokes_<part>_lamp<i>``; ``quadrature_error`` ``(lamps,)``: each lamp's quadrature error estimate
+        relative to its brightest value (0 for a point lamp; :func:`lamp_stokes`).
 
     Raises
     ------
@@ -400,8 +515,8 @@ def closed_form_arrays(scene: Scene) -> dict[str, np.ndarray]:
     if not seen.any():
         raise UserError(f"{scene.source}: camera: sees no part of the object (check camera.position/look_at/"
                         "fov_x_deg and object.position)")  # fmt: skip
-    _check_lamps(scene)
     P = np.where(seen[..., None], origin + hits.t[..., None] * d, np.nan)
+    _check_lamps(scene, P)
     N = np.where(seen[..., None], hits.N, np.nan)
     Ps, Ns, which = P[seen], N[seen], hits.which[seen]
     mat = scene.material
@@ -409,24 +524,27 @@ def closed_form_arrays(scene: Scene) -> dict[str, np.ndarray]:
     several = len(scene.lamps) > 1
     out: dict[str, np.ndarray] = {"P": P, "N": N, "to_world": to_world}
     total = {part: np.zeros((3, *seen.shape, 3)) for part in ("specular", "diffuse")}
-    for i, lamp in enumerate(scene.lamps):
-        lit = np.ones(len(Ps), bool)
-        if scene.object.type not in CONVEX:
-            lit = ~shadowed(prims, Ps, which, np.asarray(lamp.position, float))
-        for part, value in zip(("specular", "diffuse"), lamp_stokes(scene, i, Ps, Ns, to_world[:3, 1], lit, sign)):
+    blocked = None if scene.object.type in CONVEX else (lambda idx, lamp: shadowed(prims, Ps[idx], which[idx], lamp))
+    errors = []
+    for i in range(len(scene.lamps)):
+        *parts, error = lamp_stokes(scene, i, Ps, Ns, to_world[:3, 1], blocked, sign)
+        errors.append(error)
+        for part, value in zip(("specular", "diffuse"), parts):
             image = np.zeros((3, *seen.shape, 3))
             image[:, seen] = value
             total[part] += image
             if several:
                 out[f"stokes_{part}_lamp{i}"] = image.astype(np.float32)
+    out["quadrature_error"] = np.asarray(errors, float)
     out["stokes_specular"] = total["specular"].astype(np.float32)
     out["stokes_diffuse"] = total["diffuse"].astype(np.float32)
     out["stokes_full"] = (total["specular"] + total["diffuse"]).astype(np.float32)
     return out
 
 
-def _check_lamps(scene: Scene) -> None:
-    """A lamp inside a closed object is an error (as the Mitsuba renderer's ``_check_geometry``)."""
+def _check_lamps(scene: Scene, P: np.ndarray) -> None:
+    """A lamp inside a closed object, or a sphere lamp reaching a surface point ``P`` (H, W, 3) the camera sees, is
+    an error (as the Mitsuba renderer's ``_check_geometry`` says)."""
     obj = scene.object
     place = placement(obj)
     for i, lamp in enumerate(scene.lamps):
@@ -436,6 +554,11 @@ def _check_lamps(scene: Scene) -> None:
         if inside:
             raise UserError(f"{scene.source}: {lamp_name(i, len(scene.lamps))}.position: {list(lamp.position)} is "
                             "inside the object")  # fmt: skip
+        if lamp.radius > 0:
+            gap = float(np.nanmin(np.linalg.norm(P - np.asarray(lamp.position), axis=-1)))
+            if gap <= lamp.radius:
+                raise UserError(f"{scene.source}: {lamp_name(i, len(scene.lamps))}.radius: {lamp.radius} m reaches the "
+                                f"object (a surface point the camera sees is {gap:.4g} m from the lamp's centre)")  # fmt: skip
 
 
 def render_closed_form(scene: Scene):
@@ -443,7 +566,10 @@ def render_closed_form(scene: Scene):
     float rounding, ``meta.generator.renderer`` ``closed-form``."""
     from .render import assemble
 
-    capture = assemble(scene, closed_form_arrays(scene), key=closed_form_key(scene))
+    arrays = closed_form_arrays(scene)
+    capture = assemble(scene, arrays, key=closed_form_key(scene))
     meta = dict(capture.meta)
     meta["generator"] = {**meta["generator"], "renderer": NAME}
+    if any(lamp.radius > 0 for lamp in scene.lamps):
+        meta["generator"]["quadrature_error"] = [float(e) for e in arrays["quadrature_error"]]
     return capture.replace(meta=meta)
