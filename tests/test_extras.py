@@ -116,6 +116,12 @@ def test_without_extras_estimate_and_evaluate_work_and_render_says_what_to_insta
     assert (run.returncode, run.stderr) == (2, "nearlight sweep: needs the renderer: pip install 'nearlight[render]'\n")
     assert not (tmp_path / "res3").exists()
 
+    # the same scene file in closed form needs no renderer (generator/closed_form.py is numpy only)
+    sweep.write_text(yaml.safe_dump({**SWEEP, "renderer": "closed-form", "scene": str(ROOT / "scenes" / "ts_board.yaml"),
+                                     "set": {"camera.resolution": [48, 36]}, "axes": {"lamp_distance": [0.3]}}))  # fmt: skip
+    run = _blocked(tmp_path, "sweep", str(sweep), "--out", str(tmp_path / "res4"), "--quiet")
+    assert run.returncode == 0, run.stderr
+
 
 def test_a_plain_install_in_a_fresh_venv_estimates(tmp_path):
     """pip install -c constraints.txt <repo>, no extras: Mitsuba absent, ``nearlight estimate`` works.

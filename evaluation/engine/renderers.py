@@ -1,12 +1,15 @@
-"""Renderers a sweep can use: the Mitsuba generator, or closed-form analytic captures.
+"""Renderers a sweep can use: the Mitsuba generator, its closed form, either per scene, or analytic captures.
 
 A renderer knows its scene format (a nested dict), where the keys each sweep
 axis changes live in it, how to check a scene, and how to render one. The
 ``mitsuba`` renderer is the generator (scene files of ``scenes/``, renders
-cached on disk by hash); the ``analytic`` renderer calls
-:func:`nearlight.generator.analytic.analytic_capture` (numpy only, a board or a sphere,
-``ideal`` polarization): milliseconds per capture, for estimator studies and
-for testing the evaluation itself.
+cached on disk by hash); ``closed-form`` renders the same scene files by
+arithmetic (:mod:`nearlight.generator.closed_form`: the same capture but for
+float rounding, for the scenes it covers); ``auto`` gives each scene to
+``closed-form`` when it covers it, to ``mitsuba`` otherwise. The ``analytic``
+renderer calls :func:`nearlight.generator.analytic.analytic_capture` (numpy only,
+its own scene format: a board or a sphere, ``ideal`` polarization with a constant
+phase), for testing the evaluation itself.
 """
 
 from __future__ import annotations
@@ -164,6 +167,10 @@ class Renderer:
         """The noise-free capture of ``scene``."""
         raise NotImplementedError
 
+    def used_by(self, scene: dict) -> str:
+        """The renderer that renders ``scene`` (a result row's ``renderer``): this one, but for ``auto``."""
+        return self.name
+
 
 class AnalyticRenderer(Renderer):
     """Closed-form captures: scenes are keyword arguments of ``analytic_capture``."""
@@ -304,5 +311,66 @@ class MitsubaRenderer(Renderer):
         return render_clean(self._scene(scene), cache_dir=cache_dir, progress=False)
 
 
+class ClosedFormRenderer(MitsubaRenderer):
+    """Scene files rendered in closed form (:mod:`nearlight.generator.closed_form`): Mitsuba's capture by
+    arithmetic, numpy only, for the scenes it covers (a scene it does not cover is a one-line error naming the
+    key). Milliseconds per render, so nothing is cached."""
+
+    name = "closed-form"
+    prerender = False
+    extra = None
+
+    def validate(self, scene: dict, *, where: str) -> None:
+        from ...generator.closed_form import not_covered
+
+        super().validate(scene, where=where)
+        why = not_covered(self._scene(scene))
+        if why:
+            raise UserError(f"{where}: {why[0]}: the closed-form renderer does not cover it (renderer: auto renders "
+                            "such scenes with Mitsuba)")  # fmt: skip
+
+    def render_key(self, scene: dict) -> str:
+        from ...generator.closed_form import closed_form_key
+
+        return closed_form_key(self._scene(scene))
+
+    def prepare(self, scene: dict, *, cache_dir: Path | None) -> bool:
+        return False
+
+    def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
+        from ...generator.closed_form import render_closed_form
+
+        return render_closed_form(self._scene(scene))
+
+
+class AutoRenderer(MitsubaRenderer):
+    """Each scene to the closed-form renderer when it covers every key the scene uses
+    (:func:`nearlight.generator.closed_form.not_covered`), to Mitsuba otherwise; :meth:`used_by` names the one a
+    scene gets (a result row's ``renderer``)."""
+
+    name = "auto"
+
+    def covers(self, scene: dict) -> bool:
+        """Whether the closed form renders ``scene``."""
+        from ...generator.closed_form import not_covered
+
+        return not not_covered(self._scene(scene))
+
+    def used_by(self, scene: dict) -> str:
+        return ClosedFormRenderer.name if self.covers(scene) else MitsubaRenderer.name
+
+    def render_key(self, scene: dict) -> str:
+        return (ClosedFormRenderer if self.covers(scene) else MitsubaRenderer)().render_key(scene)
+
+    def prepare(self, scene: dict, *, cache_dir: Path | None) -> bool:
+        return False if self.covers(scene) else super().prepare(scene, cache_dir=cache_dir)
+
+    def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
+        return (ClosedFormRenderer if self.covers(scene) else MitsubaRenderer)().render(scene, cache_dir=cache_dir)
+
+
 #: Renderers by the sweep file's ``renderer`` key.
-RENDERERS: dict[str, type[Renderer]] = {"analytic": AnalyticRenderer, "mitsuba": MitsubaRenderer}
+RENDERERS: dict[str, type[Renderer]] = {"analytic": AnalyticRenderer, "mitsuba": MitsubaRenderer,
+                                        "closed-form": ClosedFormRenderer, "auto": AutoRenderer}  # fmt: skip
+#: Renderers whose scenes are scene files (``scenes/``): the generator's format.
+SCENE_FILE_RENDERERS = ("mitsuba", "closed-form", "auto")

@@ -75,7 +75,7 @@ def task_row(task: Task, result: dict[str, Any], *, sweep: Sweep, version: str) 
             "noisy": task.noisy,
             "method": task.method.label,
             "render_key": task.render_key,
-            "renderer": sweep.renderer.name,
+            "renderer": sweep.renderer.used_by(task.scene),
             "code_version": version,
         }
     )

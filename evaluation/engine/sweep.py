@@ -33,7 +33,7 @@ from ...files.yamlfile import load_yaml_mapping
 from ...files.digests import stable_hash
 from ...files.dotted import set_dotted
 from ...physics.reflectance import LOBES
-from .renderers import RENDERERS, Renderer
+from .renderers import RENDERERS, SCENE_FILE_RENDERERS, Renderer
 
 #: Built-in axes: name -> (applied after rendering?, meaning).
 AXES: dict[str, tuple[bool, str]] = {
@@ -68,7 +68,7 @@ class SweepFile(BaseModel):
     model_config = ConfigDict(extra="forbid")
     name: str
     description: str = ""
-    renderer: Literal["mitsuba", "analytic"] = "mitsuba"
+    renderer: Literal["mitsuba", "closed-form", "auto", "analytic"] = "mitsuba"
     scene: str | dict[str, Any]
     set: dict[str, Any] = Field(default_factory=dict)
     axes: dict[str, list[Any] | dict[str, Any]] = Field(default_factory=dict)
@@ -352,7 +352,7 @@ def seed_matters(renderer: Renderer, scene: dict, noise: Any, range_noise: float
     or a camera that moves per shot (``camera.jitter_px``)."""
     if noise is not None or range_noise > 0 or renderer.renders_per_seed(scene):
         return True
-    if renderer.name != "mitsuba":
+    if renderer.name not in SCENE_FILE_RENDERERS:
         return False
     from ...generator.nuisances import draws_from_seed, nuisances_of
 

@@ -30,7 +30,7 @@ from ...files.figures import pyplot, save_png
 from ...files.outputs import check_files_in, make_folder
 from .study import DesignRun, Input, Study, analyse, outputs
 from ..engine.provenance import record
-from ..views.report import frame_table
+from ..views.report import frame_table, renderers_line
 from ..engine.store import read_results
 
 #: The report's sub-folder of a design's results folder.
@@ -196,7 +196,8 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
           + ("Saltelli base samples" if design == "sobol" else "trajectories")
           + " analysed (a block with a failed or non-finite output is dropped whole).", "",
           f"Design: `{design}`, n = {run.design.n}, seed {run.design.seed}, {len(run.samples)} samples, "
-          f"{len(run.sweep.tasks)} tasks" + ("" if complete else " (INCOMPLETE: rows missing)") + ".", "",
+          f"{len(run.sweep.tasks)} tasks" + ("" if complete else " (INCOMPLETE: rows missing)") + f"; "
+          f"{renderers_line(results)}.", "",
           "Inputs: " + "; ".join(f"`{i.name}` {_dist(i)}" for i in study.inputs) + ".", "",
           "## Which input matters most", "", frame_table(headline(indices, design)), ""]  # fmt: skip
     for metric in metrics:

@@ -49,6 +49,7 @@ from ...errors import UserError
 from ...files.dotted import set_dotted
 from ...files.schema import validate
 from ...files.yamlfile import load_yaml_mapping
+from ..engine.renderers import SCENE_FILE_RENDERERS
 from ..engine.sweep import Sweep, SweepFile, axis_label, load_sweep
 from ..scoring.metrics import ESTIMATE_COLUMNS, METRICS
 
@@ -343,7 +344,7 @@ def _inputs(path: str, spec: _GSAFile) -> list[Input]:
                             "noise.FIELD or a dotted scene key)")  # fmt: skip
         if name.startswith("noise.") and spec.noise is None:
             raise UserError(f"{where}: needs the file's noise (the camera noise whose field it varies)")
-        if name in CAMERA_INPUTS and spec.renderer != "mitsuba":
+        if name in CAMERA_INPUTS and spec.renderer not in SCENE_FILE_RENDERERS:
             raise UserError(f"{where}: moves the camera of a Mitsuba scene; with renderer: analytic, "
                             "drive camera_position as a dotted key")  # fmt: skip
         if is_labels:

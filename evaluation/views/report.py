@@ -337,7 +337,7 @@ def write_report(
     if not complete:
         md += [f"**Incomplete sweep: {len(df)} of {info.get('tasks', '?')} tasks have rows.**", ""]
     md += [f"{len(df)} tasks; code version(s): {', '.join(sorted(df['code_version'].astype(str).unique()))}; "
-           f"report written by {code_version()}.",
+           f"report written by {code_version()}; {renderers_line(df)}.",
            "Cells: median (90th percentile) over successful tasks. Units: "
            + "; ".join(f"{m} [{METRICS[m]}]" for m in HEADLINE) + ".", "",
            "## Overall", "", frame_table(counts.reset_index()), "", frame_table(_wide(overall, ["method"])), ""]
@@ -428,3 +428,14 @@ def write_report(
            entry_modules=[__name__], part="report")
     return folder
 
+
+def renderers_line(df: pd.DataFrame) -> str:
+    """Which renderer made the rows: ``rendered by mitsuba`` or, for ``renderer: auto``, each with its count of
+    tasks (``rendered by closed-form (4800 tasks), mitsuba (240)``)."""
+    if "renderer" not in df.columns:
+        return "renderer not recorded"
+    counts = df["renderer"].astype(str).value_counts()
+    if len(counts) == 1:
+        return f"rendered by {counts.index[0]}"
+    first, *rest = counts.items()
+    return "rendered by " + ", ".join([f"{first[0]} ({first[1]} tasks)", *(f"{k} ({v})" for k, v in rest)])
