@@ -3,9 +3,10 @@
 What limits every study nearlight ships (the GSA at 120x90, the sensitivity
 and realism sweeps at 160x120) is the cost of a task: a render, the noise,
 the method, the score. This script runs the same tasks through the sweep
-engine's own task runner (``evaluation.engine.tasks.run_task``), once with
-the Mitsuba renderer and once with the closed-form one (``renderer:
-analytic``), on the GSA's scene (``sweeps/global.yaml``: its board, or a
+engine's own task runner (``evaluation.engine.tasks.run_task``) with the
+Mitsuba renderer, with its closed form (``renderer: closed-form``, the same
+scene file: what ``renderer: auto`` uses where it covers the scene) and with
+the analytic captures (``renderer: analytic``), on the GSA's scene (``sweeps/global.yaml``: its board, or a
 sphere in its place; its camera, lamp and Torrance-Sparrow lobe), its camera
 noise and its methods. Every scene is one Dr.Jit has not rendered
 before (its lamp at a distance never used; Dr.Jit compiles a kernel per
@@ -15,8 +16,8 @@ Each scene is rendered once and timed apart from the methods run on it
 renderer: a render, each method, a task with one method (render + method)
 and a GSA sample (one render, every method), in CPU seconds of the process
 (all threads: Mitsuba renders on every core, so core-seconds, not wall
-clock), per core-second, and the closed-form renderer's throughput as a
-ratio to Mitsuba's (today's studies render with Mitsuba). Imports and the
+clock), per core-second, and each renderer's throughput as a ratio to
+Mitsuba's (today's studies render with Mitsuba). Imports and the
 first compilation are paid once before timing. Printed, not asserted: the
 machine is shared, and a ratio inside one process is what carries over to
 another machine (issue 36's throughput benchmark).
@@ -115,29 +116,31 @@ def main() -> None:
     ap.add_argument("--resolutions", nargs="+", default=["120x90", "160x120"], help="WxH, the studies' sizes")
     ap.add_argument("--objects", nargs="+", choices=sorted(OBJECTS), default=["board", "sphere"])
     ap.add_argument("--tasks", type=int, default=3, help="scenes per renderer, each run by every method; medians")
+    ap.add_argument("--renderers", nargs="+", default=["closed-form", "analytic"],
+                    choices=["closed-form", "analytic"], help="timed against Mitsuba (today's studies' renderer)")
     args = ap.parse_args()
-    print("CPU seconds (all threads), median over scenes; per core-second; the analytic renderer's throughput / "
-          "Mitsuba's; how many tasks each method failed (it said why)")
-    print(f"{'res':>8} {'object':<7}{'':<19}{'mitsuba s':>10}{'per core-s':>11}{'analytic s':>11}{'per core-s':>11}"
-          f"{'ratio':>7}  failed (mitsuba, analytic)")  # fmt: skip
+    others = args.renderers
+    print("CPU seconds (all threads), median over scenes; per core-second; each renderer's throughput / Mitsuba's "
+          "(ratio); how many tasks each method failed (it said why)")
+    print(f"{'res':>8} {'object':<7}{'':<19}{'mitsuba s':>10}{'per core-s':>11}"
+          + "".join(f"{r + ' s':>15}{'per core-s':>11}{'ratio':>7}" for r in others)
+          + "  failed (mitsuba, " + ", ".join(others) + ")")  # fmt: skip
     for res in args.resolutions:
         width, height = (int(v) for v in res.lower().split("x"))
         for obj in args.objects:
-            got = {r: timed(r, obj, width, height, args.tasks) for r in ("mitsuba", "analytic")}
+            names = ["mitsuba", *others]
+            got = {r: timed(r, obj, width, height, args.tasks) for r in names}
             render = {r: float(np.median(got[r][0])) for r in got}
             method = {r: {m: float(np.median(v)) for m, v in got[r][1].items()} for r in got}
-            rows = [("render", render["mitsuba"], render["analytic"], "")]
-            for m in method["mitsuba"]:
-                rows.append((f"{m} (method)", method["mitsuba"][m], method["analytic"][m],
-                             f"  {got['mitsuba'][2][m]}, {got['analytic'][2][m]}"))
-            for m in method["mitsuba"]:
-                rows.append((f"{m} task", render["mitsuba"] + method["mitsuba"][m],
-                             render["analytic"] + method["analytic"][m], ""))
-            rows.append(("GSA sample", render["mitsuba"] + sum(method["mitsuba"].values()),
-                         render["analytic"] + sum(method["analytic"].values()), ""))
-            for label, mi, an, tail in rows:
-                print(f"{res:>8} {obj:<7}{label:<19}{mi:>10.3f}{1 / mi:>11.2f}{an:>11.4f}{1 / an:>11.1f}"
-                      f"{mi / an:>7.1f}{tail}")
+            labels = list(method["mitsuba"])
+            rows = [("render", {r: render[r] for r in names}, "")]
+            rows += [(f"{m} (method)", {r: method[r][m] for r in names},
+                      "  " + ", ".join(str(got[r][2][m]) for r in names)) for m in labels]  # fmt: skip
+            rows += [(f"{m} task", {r: render[r] + method[r][m] for r in names}, "") for m in labels]
+            rows.append(("GSA sample", {r: render[r] + sum(method[r].values()) for r in names}, ""))
+            for label, t, tail in rows:
+                print(f"{res:>8} {obj:<7}{label:<19}{t['mitsuba']:>10.3f}{1 / t['mitsuba']:>11.2f}"
+                      + "".join(f"{t[r]:>15.4f}{1 / t[r]:>11.1f}{t['mitsuba'] / t[r]:>7.1f}" for r in others) + tail)
 
 
 if __name__ == "__main__":
