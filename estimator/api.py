@@ -141,7 +141,7 @@ def answer_and_verdict(capture: Capture | str | os.PathLike, *, method: str = "p
         verdict = answer
         if sanity and answer.ok:
             clock = time.perf_counter()
-            verdict = review(capture, answer, rules_options(method, options))
+            verdict = review(capture, answer, _rules_options(fn, options))
             verdict.timings["sanity"] = time.perf_counter() - clock
     return answer, verdict
 
@@ -149,7 +149,11 @@ def answer_and_verdict(capture: Capture | str | os.PathLike, *, method: str = "p
 def rules_options(method: str, options: Mapping[str, Any]) -> dict[str, Any]:
     """The options the sanity rules hold ``method``'s answers with: its own defaults of the options that shape
     its observation (:func:`observation_defaults`), then ``options``."""
-    return {**observation_defaults(load_method(method)), **options}
+    return _rules_options(load_method(method), options)
+
+
+def _rules_options(fn: Callable[..., Estimate], options: Mapping[str, Any]) -> dict[str, Any]:
+    return {**observation_defaults(fn), **options}
 
 
 def observation_defaults(fn: Callable[..., Estimate]) -> dict[str, object]:

@@ -19,10 +19,15 @@ from .result import Estimate
 from ..physics.reflectance import specular_radiance
 
 
-def _point(P, N, camera, estimate: Estimate) -> np.ndarray:
+def fitted_bsdf(estimate: Estimate) -> dict | None:
+    """The lobe family's own parameters ``full`` fitted (``stages["full"]["bsdf"]``), or None (the estimate's
+    Torrance–Sparrow ``ks`` and ``sigma`` are its lobe)."""
     stage = estimate.stages.get("full")
-    bsdf = stage.get("bsdf") if isinstance(stage, dict) else None  # the lobe family ``full`` fitted
-    bsdf = bsdf or {"model": "torrance_sparrow", "ks": estimate.ks, "sigma": estimate.sigma}
+    return stage.get("bsdf") if isinstance(stage, dict) else None
+
+
+def _point(P, N, camera, estimate: Estimate) -> np.ndarray:
+    bsdf = fitted_bsdf(estimate) or {"model": "torrance_sparrow", "ks": estimate.ks, "sigma": estimate.sigma}
     return specular_radiance(P, N, camera, estimate.lamp_position, 1.0, bsdf)
 
 

@@ -26,6 +26,7 @@ import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from ..errors import UserError
 
@@ -160,9 +161,13 @@ def _json_with(*keys: str) -> Callable[[Path], bool]:
     return check
 
 
-def _json_format(path: Path, prefix: str) -> bool:
-    doc = _read_json(path)
+def _has_format(doc: Any, prefix: str) -> bool:
+    """Whether ``doc`` is a JSON object whose ``format`` starts with ``prefix``."""
     return isinstance(doc, dict) and isinstance(doc.get("format"), str) and doc["format"].startswith(prefix)
+
+
+def _json_format(path: Path, prefix: str) -> bool:
+    return _has_format(_read_json(path), prefix)
 
 
 def _first_line_format(path: Path, prefix: str) -> bool:
@@ -172,7 +177,7 @@ def _first_line_format(path: Path, prefix: str) -> bool:
             doc = json.loads(f.readline(1 << 16).decode("utf-8"))
     except (OSError, UnicodeDecodeError, ValueError, RecursionError):
         return False
-    return isinstance(doc, dict) and isinstance(doc.get("format"), str) and doc["format"].startswith(prefix)
+    return _has_format(doc, prefix)
 
 
 def _text_starting(*prefixes: str) -> Callable[[Path], bool]:

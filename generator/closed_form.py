@@ -52,7 +52,7 @@ import numpy as np
 from ..errors import UserError
 from ..files.digests import stable_hash
 from ..physics.camera import camera_rays, look_at_matrix
-from ..physics.polarization import filter_axes
+from ..physics.polarization import analyzer_frame, filter_axes, korger_axis
 from ..physics.reflectance import brdf_shape, shading_geometry
 from ..physics.texture import checker_sign, textured
 from .scene import Bookend, Board, Cylinder, LampSpec, MitsubaMaterial, Scene, Sphere, lamp_name, placement
@@ -237,6 +237,12 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.sum(a * b, axis=-1)
 
 
+def _across(d: np.ndarray) -> np.ndarray:
+    """A unit vector normal to each unit vector ``d`` (..., 3): ``d × x̂``, or ``d × ŷ`` where ``d`` is near x̂
+    (:func:`nearlight.physics.reflectance.tangent_basis`'s choice, for arrays)."""
+    return _unit(np.cross(d, np.where(np.abs(d[..., :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])))
+
+
 def fresnel_amplitudes(cos_i: np.ndarray, eta: float) -> tuple[np.ndarray, np.ndarray]:
     """A dielectric's amplitude reflection coefficients, in the frames where a mirror has ``rs = rp = 1``.
 
@@ -283,8 +289,7 @@ def reflected_states(k: np.ndarray, v: np.ndarray, fields: list[tuple[np.ndarray
     s = np.cross(k, h)
     norm = np.linalg.norm(s, axis=-1, keepdims=True)
     # retro-reflection (k = -v): every direction is s; rs = rp there, so any choice gives the same field
-    fallback = np.cross(k, np.where(np.abs(k[..., :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
-    s = np.where(norm > 1e-12, s / np.maximum(norm, 1e-300), _unit(fallback))
+    s = np.where(norm > 1e-12, s / np.maximum(norm, 1e-300), _across(k))
     p_in = np.cross(s, k)
     p_out = p_in - 2.0 * _dot(p_in, h)[..., None] * h
     if fresnel_eta is None:
@@ -301,8 +306,7 @@ def lamp_fields(spec: LampSpec, facing: np.ndarray, k: np.ndarray) -> list[tuple
     """The light behind lamp ``spec``'s filter as incoherent linear states (unit fields, weights per unit
     intensity): ``½`` along Korger's effective axis ``t = k × â⊥`` and, for a finite extinction ratio ε,
     ``½/ε`` along ``k × t`` (:mod:`nearlight.generator.lamp`)."""
-    absorb = filter_axes(spec.polarizer_axis, facing)[1]
-    t = np.cross(k, _unit(absorb - _dot(absorb, k)[..., None] * k))
+    t = korger_axis(k, filter_axes(spec.polarizer_axis, facing)[1])
     out = [(t, 0.5)]
     if spec.polarizer_extinction_ratio is not None:
         out.append((np.cross(k, t), 0.5 / spec.polarizer_extinction_ratio))
@@ -430,8 +434,7 @@ def sphere_nodes(P: np.ndarray, centre: np.ndarray, radius: float, n: int) -> It
     dc = np.linalg.norm(to, axis=-1)
     axis = to / dc[..., None]
     cos_max = np.sqrt(np.maximum(1.0 - (radius / dc) ** 2, 0.0))
-    helper = np.where(np.abs(axis[..., :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    a = _unit(np.cross(axis, helper))
+    a = _across(axis)
     b = np.cross(axis, a)
     x, w = np.polynomial.legendre.leggauss(n)
     for xi, wi in zip(x, w):
@@ -463,8 +466,7 @@ def _unit_stokes(scene: Scene, i: int, P: np.ndarray, N: np.ndarray, up: np.ndar
         ok &= ~blocked(idx, lamp)
     k = -g.light
     power = np.where(ok, beam(spec, facing, k) * np.clip(g.cos_i, 0, None) * weight, 0.0)
-    x = _unit(np.cross(-g.view, up))
-    y = np.cross(g.view, x)
+    x, y = analyzer_frame(g.view, up)
     fields = lamp_fields(spec, facing, k)
     shape = np.zeros(len(P))
     for value in ((None,) if sign is None else (-1.0, 1.0)):  # the lobe at each checker sign's roughness

@@ -304,10 +304,49 @@ def specular_aolp(P: np.ndarray, camera_position: Any, camera_up: Any, lamp: Any
     lamp = np.asarray(lamp, float)
     absorb = filter_axes(axis, np.asarray(aim, float) - lamp)[1]
     k = _unit(P - lamp)
-    e = np.cross(k, _unit(absorb - _dot(absorb, k) * k))
+    e = korger_axis(k, absorb)
     v = _unit(np.asarray(camera_position, float) - P)
     h = _unit(v - k)
     e_r = e - 2.0 * _dot(e, h) * h
-    x = _unit(np.cross(-v, np.asarray(camera_up, float)))
-    y = np.cross(v, x)
+    x, y = analyzer_frame(v, camera_up)
     return np.arctan2(_dot(e_r, y)[..., 0], _dot(e_r, x)[..., 0])
+
+
+def korger_axis(k: np.ndarray, absorb: Any) -> np.ndarray:
+    """The effective transmission axis of a tilted linear polarizer for light leaving along ``k``: ``k × â⊥``,
+    ``â⊥`` the filter's absorbing axis ``absorb`` projected normal to ``k`` (Korger et al. 2013; the generator's
+    lamp, :mod:`nearlight.generator.lamp`).
+
+    Parameters
+    ----------
+    k : ndarray, shape (..., 3)
+        Unit propagation directions (lamp → point).
+    absorb : array_like, shape (3,)
+        The filter's absorbing axis (:func:`filter_axes`).
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Unit vectors normal to ``k``.
+    """
+    return np.cross(k, _unit(absorb - _dot(absorb, k) * k))
+
+
+def analyzer_frame(view: np.ndarray, camera_up: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The analyzer's Stokes frame of each camera ray, as the generator rotates Mitsuba's Stokes into it.
+
+    Parameters
+    ----------
+    view : ndarray, shape (..., 3)
+        Unit directions from the surface points towards the camera.
+    camera_up : array_like, shape (3,)
+        The camera's up vector (``to_world``'s second column).
+
+    Returns
+    -------
+    x, y : ndarray, shape (..., 3)
+        ``x = (−v) × up / |…|`` (the image's rightward horizontal), ``y = v × x``: an analyzer angle θ is
+        counter-clockwise from ``x``.
+    """
+    x = _unit(np.cross(-view, np.asarray(camera_up, float)))
+    return x, np.cross(view, x)

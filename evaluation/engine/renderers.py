@@ -356,17 +356,21 @@ class AutoRenderer(MitsubaRenderer):
 
         return not not_covered(self._scene(scene))
 
+    def chosen(self, scene: dict) -> Renderer:
+        """The renderer ``scene`` goes to."""
+        return ClosedFormRenderer() if self.covers(scene) else MitsubaRenderer()
+
     def used_by(self, scene: dict) -> str:
-        return ClosedFormRenderer.name if self.covers(scene) else MitsubaRenderer.name
+        return self.chosen(scene).name
 
     def render_key(self, scene: dict) -> str:
-        return (ClosedFormRenderer if self.covers(scene) else MitsubaRenderer)().render_key(scene)
+        return self.chosen(scene).render_key(scene)
 
     def prepare(self, scene: dict, *, cache_dir: Path | None) -> bool:
-        return False if self.covers(scene) else super().prepare(scene, cache_dir=cache_dir)
+        return self.chosen(scene).prepare(scene, cache_dir=cache_dir)
 
     def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
-        return (ClosedFormRenderer if self.covers(scene) else MitsubaRenderer)().render(scene, cache_dir=cache_dir)
+        return self.chosen(scene).render(scene, cache_dir=cache_dir)
 
 
 #: Renderers by the sweep file's ``renderer`` key.

@@ -36,7 +36,7 @@ from ...files.atomic import write_folder, write_json
 from ...files.jsonable import jsonable
 from ...files.outputs import check_folder
 from ...files.schema import check_name, check_relative, inside, validate
-from .suite import INPUT, MANIFEST, checksum_problems, read_manifest, strip_truth, unique_cases
+from .suite import INPUT, MANIFEST, checksum_problems, read_manifest, strip_truth, suite_cases, unique_cases
 
 #: An export's manifest ``format``.
 FORMAT = "nearlight-suite-inputs/1"
@@ -125,10 +125,11 @@ def read_inputs(folder: str | Path) -> tuple[dict[str, Any], list[tuple[str, Pat
         raise UserError(f"{path}: not a readable suite manifest ({one_line(exc)[:120]})") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         manifest = read_manifest(folder)  # a built suite (its own one-line errors)
-        return manifest, [(c["id"], folder / c["path"] / INPUT) for c in manifest["cases"]]
+        return manifest, suite_cases(folder, manifest)
     validate(_model(), doc, where=str(path))
-    cases = [(c["id"], inside(folder, c["path"], where=f"{path}: cases.{c['id']}.path") / INPUT) for c in doc["cases"]]
-    return doc, cases
+    for c in doc["cases"]:
+        inside(folder, c["path"], where=f"{path}: cases.{c['id']}.path")
+    return doc, suite_cases(folder, doc)
 
 
 @functools.cache

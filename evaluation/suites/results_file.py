@@ -36,6 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, m
 from ...capture import read_capture
 from ...errors import UserError, one_line
 from ...estimator import Estimate
+from ...estimator.prediction import fitted_bsdf
 from ...files.atomic import write_text
 from ...files.schema import validate
 from ...physics.reflectance import LOBES
@@ -232,7 +233,7 @@ def estimate_row(case_id: str, answer: Estimate | None, reviewed: Estimate | Non
                 row["covariance"] = [_floats(r) for r in C]
             except (ValueError, np.linalg.LinAlgError):
                 pass
-        bsdf = (answer.stages.get("full") or {}).get("bsdf") if isinstance(answer.stages.get("full"), dict) else None
+        bsdf = fitted_bsdf(answer)
         if bsdf is not None:
             row["bsdf"] = {k: (_floats(v) if np.ndim(v) else float(v)) if k != "model" else v for k, v in bsdf.items()}
         if answer.light_model.get("type", "point") != "point":

@@ -53,7 +53,7 @@ from ..scoring.calibration import MAHALANOBIS_COLUMN, coverage, coverage_cells
 from ..scoring.metrics import ESTIMATE_COLUMNS, INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
 from .results_file import RESULTS_JSONL, estimate_row, read_results, row_estimate, write_results
 from .results_file import header as results_header
-from .suite import INPUT, MANIFEST, TRUTH, checksum_problems, read_manifest, strip_truth
+from .suite import INPUT, MANIFEST, TRUTH, checksum_problems, read_manifest, strip_truth, suite_cases
 
 #: Metric -> (thresholds, as the metric's values; label of a threshold). The lamp: % of the distance from
 #: the highlight point; σ and Ks: relative errors 0.5 %, 1 %, 2 %, 5 %, 10 % (the issue's ladder).
@@ -118,7 +118,7 @@ def score_reported(case: Mapping[str, Any], *, answer: Mapping[str, Any], method
     """Score one case's row of a results file: a ``failed`` row is a failure with its reason, an ``ok`` row the
     :class:`~nearlight.estimator.Estimate` it states (:func:`~nearlight.evaluation.suites.results_file.row_estimate`),
     held to the rules of :mod:`nearlight.estimator.sanity` as a plug-in's answer is (``rules``: the header's
-    ``observation``), then scored as :func:`score_case` scores. Its ``runtime_s`` is the reported one. Never raises."""
+    ``rules``), then scored as :func:`score_case` scores. Its ``runtime_s`` is the reported one. Never raises."""
     row = blank_row()
     row["runtime_s"] = answer.get("runtime_s", math.nan)
     if answer["status"] != "ok":
@@ -164,11 +164,6 @@ def check_score_out(out: str | Path, manifest: Mapping[str, Any], method: str, o
                        (RESULTS_JSONL, "results")):  # fmt: skip
         check_file_out(out / name, kind)  # files.outputs.KINDS: how nearlight knows its own files
     return out
-
-
-def suite_cases(suite_dir: Path, manifest: Mapping[str, Any]) -> list[tuple[str, Path]]:
-    """(case id, input capture folder) of every case of a built suite, in order."""
-    return [(c["id"], suite_dir / c["path"] / INPUT) for c in manifest["cases"]]
 
 
 def score_suite(

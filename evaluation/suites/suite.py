@@ -627,6 +627,12 @@ def _manifest_models() -> tuple[type, type]:
     return Manifest, CaseEntry
 
 
+def suite_cases(suite_dir: Path, manifest: Mapping[str, Any]) -> list[tuple[str, Path]]:
+    """(case id, input capture folder) of every case of a suite's manifest (a built suite's or an export's), in
+    order."""
+    return [(c["id"], Path(suite_dir) / c["path"] / INPUT) for c in manifest["cases"]]
+
+
 def unique_cases(cls: type, cases: list) -> list:
     """A pydantic validator of a manifest's ``cases`` (a built suite's or an export's): no ``id`` and no ``path``
     names two cases."""
