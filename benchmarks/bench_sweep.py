@@ -44,10 +44,7 @@ def main() -> None:
         for workers in (1, 2):
             s = run_sweep(sweep, Path(tmp) / f"w{workers}", workers=workers, progress=False)
             rates[workers] = s.ran / (s.seconds / 60.0)
-            print(
-                f"workers={workers}: {s.ran} tasks in {s.seconds:.1f} s = {rates[workers]:.1f} tasks/min; "
-                f"renders: {s.rendered} rendered, {s.reused} tasks re-used a render; {s.failed} failed"
-            )
+            print(f"workers={workers}: {rates[workers]:.1f} tasks/min; {s.line()}")
     print(f"scaling efficiency with 2 workers: {rates[2] / (2 * rates[1]):.2f} (1.00 = perfect)")
 
 

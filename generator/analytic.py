@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..capture import Camera, Capture, Rig
+from .closed_form import hit_points, rectangle_hits, sphere_hits
 from ..physics.camera import camera_rays, look_at_matrix
 from ..physics.polarization import analyzer_stack_ideal, through_polarizer
 from ..physics.reflectance import diffuse_radiance, normalize, specular_radiance, tangent_basis
@@ -39,37 +40,6 @@ LAMP_KEYS = ("position", "intensity", "phase_deg", "polarizer_axis")
 
 #: Default specular BSDF: the paper's simplified Torrance–Sparrow lobe.
 DEFAULT_BSDF = {"model": "torrance_sparrow", "ks": [0.8, 0.6, 0.5], "sigma": 0.1}
-
-
-def _board(origin, rays, centre, normal, size):
-    """Hit points and normals of a square board of side ``size`` (NaN off the board)."""
-    n = normalize(np.asarray(normal, dtype=float))
-    c = np.asarray(centre, dtype=float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.dot(c - origin, n) / (rays @ n)
-    P = origin + t[..., None] * rays
-    a, b = tangent_basis(n)
-    d = P - c
-    inside = (t > 0) & (np.abs(d @ a) <= size / 2) & (np.abs(d @ b) <= size / 2)
-    P[~inside] = np.nan
-    N = np.broadcast_to(n, P.shape).copy()
-    N[~inside] = np.nan
-    return P, N
-
-
-def _sphere(origin, rays, centre, radius):
-    """Nearest hit points and outward normals of a sphere (NaN where missed)."""
-    c = np.asarray(centre, dtype=float)
-    oc = origin - c
-    b = rays @ oc
-    disc = b * b - (oc @ oc - radius * radius)
-    with np.errstate(invalid="ignore"):
-        t = -b - np.sqrt(disc)
-    hit = (disc > 0) & (t > 0)
-    P = origin + t[..., None] * rays
-    P[~hit] = np.nan
-    N = (P - c) / radius
-    return P, N
 
 
 def analytic_capture(
@@ -230,12 +200,15 @@ def _capture(
         look_at = board_centre if shape == "board" else sphere_centre
     to_world = look_at_matrix(origin, look_at, up)
     rays = camera_rays(to_world, width, height, fov_x_deg)
-    if shape == "board":
-        P, N = _board(origin, rays, board_centre, board_normal, board_size)
+    if shape == "board":  # the closed-form renderer's intersections: one home for the geometry
+        n = normalize(np.asarray(board_normal, dtype=float))
+        a, b = tangent_basis(n)
+        t, N = rectangle_hits(origin, rays, np.asarray(board_centre, float), a * board_size / 2, b * board_size / 2, n)
     elif shape == "sphere":
-        P, N = _sphere(origin, rays, sphere_centre, sphere_radius)
+        t, N = sphere_hits(origin, rays, np.asarray(sphere_centre, float), sphere_radius)
     else:
         raise ValueError(f"shape: expected 'board' or 'sphere', got {shape!r}")
+    P, N = hit_points(origin, rays, t, N)
     surface = np.all(np.isfinite(P), axis=-1)
     Pz = np.where(surface[..., None], P, 0.0)
     Nz = np.where(surface[..., None], N, [0.0, 0.0, 1.0])

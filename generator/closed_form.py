@@ -109,7 +109,7 @@ class Hits:
     which: np.ndarray
 
 
-def _rectangle(o: np.ndarray, d: np.ndarray, centre, u, v, n) -> tuple[np.ndarray, np.ndarray]:
+def rectangle_hits(o: np.ndarray, d: np.ndarray, centre, u, v, n) -> tuple[np.ndarray, np.ndarray]:
     """Hits of rays ``o + t d`` on the rectangle ``centre + a u + b v`` (|a|, |b| ≤ 1) of normal ``n``."""
     u, v, n = (np.asarray(x, float) for x in (u, v, n))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -130,7 +130,7 @@ def _disk(o: np.ndarray, d: np.ndarray, centre, radius: float, n) -> tuple[np.nd
     return np.where(ok, t, np.inf), np.broadcast_to(n, d.shape)
 
 
-def _sphere(o: np.ndarray, d: np.ndarray, centre, radius: float) -> tuple[np.ndarray, np.ndarray]:
+def sphere_hits(o: np.ndarray, d: np.ndarray, centre, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """Nearest hits in front of the ray origin on a sphere, outward normals."""
     oc = o - np.asarray(centre, float)
     b = d @ oc if oc.ndim == 1 else np.einsum("...i,...i->...", d, oc)
@@ -144,6 +144,14 @@ def _sphere(o: np.ndarray, d: np.ndarray, centre, radius: float) -> tuple[np.nda
     with np.errstate(invalid="ignore"):
         N = (o + t[..., None] * d - centre) / radius
     return t, N
+
+
+def hit_points(o: np.ndarray, d: np.ndarray, t: np.ndarray, N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``o + t d`` and normals ``N`` of a primitive's hits, ``(..., 3)``; NaN where ``t`` is inf (no hit)."""
+    hit = np.isfinite(t)[..., None]
+    with np.errstate(invalid="ignore"):
+        P = o + np.where(hit, t[..., None], 0.0) * d
+    return np.where(hit, P, np.nan), np.where(hit, N, np.nan)
 
 
 def _tube(o: np.ndarray, d: np.ndarray, place: np.ndarray, radius: float, half: float) -> tuple[np.ndarray, np.ndarray]:
@@ -182,9 +190,9 @@ def primitives(scene: Scene) -> list:
     R, c = place[:3, :3], place[:3, 3]
     if isinstance(obj, Board):
         w, h = obj.size
-        return [lambda o, d: _rectangle(o, d, c, R[:, 0] * w / 2, R[:, 1] * h / 2, R[:, 2])]
+        return [lambda o, d: rectangle_hits(o, d, c, R[:, 0] * w / 2, R[:, 1] * h / 2, R[:, 2])]
     if isinstance(obj, Sphere):
-        return [lambda o, d: _sphere(o, d, c, obj.radius)]
+        return [lambda o, d: sphere_hits(o, d, c, obj.radius)]
     if isinstance(obj, Cylinder):
         half, r = obj.length / 2, obj.radius
         return [lambda o, d: _tube(o, d, place, r, half),
@@ -195,8 +203,8 @@ def primitives(scene: Scene) -> list:
         d_b = R @ np.array([0.0, np.cos(beta), np.sin(beta)])
         n_b = R @ np.array([0.0, np.sin(beta), -np.cos(beta)])
         x, y = R[:, 0] * obj.width / 2, R[:, 1]
-        return [lambda o, d: _rectangle(o, d, c + y * obj.length_a / 2, x, y * obj.length_a / 2, R[:, 2]),
-                lambda o, d: _rectangle(o, d, c + d_b * obj.length_b / 2, x, -d_b * obj.length_b / 2, n_b)]  # fmt: skip
+        return [lambda o, d: rectangle_hits(o, d, c + y * obj.length_a / 2, x, y * obj.length_a / 2, R[:, 2]),
+                lambda o, d: rectangle_hits(o, d, c + d_b * obj.length_b / 2, x, -d_b * obj.length_b / 2, n_b)]  # fmt: skip
     raise ValueError(f"object.type {obj.type}: no closed-form intersection")
 
 
@@ -517,9 +525,8 @@ def closed_form_arrays(scene: Scene) -> dict[str, np.ndarray]:
     if not seen.any():
         raise UserError(f"{scene.source}: camera: sees no part of the object (check camera.position/look_at/"
                         "fov_x_deg and object.position)")  # fmt: skip
-    P = np.where(seen[..., None], origin + hits.t[..., None] * d, np.nan)
+    P, N = hit_points(origin, d, hits.t, hits.N)
     _check_lamps(scene, P)
-    N = np.where(seen[..., None], hits.N, np.nan)
     Ps, Ns, which = P[seen], N[seen], hits.which[seen]
     mat = scene.material
     sign = None if mat.texture is None else checker_sign(Ps, placement(scene.object), mat.texture.period_m)
@@ -563,12 +570,16 @@ def _check_lamps(scene: Scene, P: np.ndarray) -> None:
                                 f"object (a surface point the camera sees is {gap:.4g} m from the lamp's centre)")  # fmt: skip
 
 
-def render_closed_form(scene: Scene):
+def render_closed_form(scene: Scene, *, arrays: dict[str, np.ndarray] | None = None):
     """The noise-free :class:`~nearlight.capture.Capture` of ``scene``, in closed form: Mitsuba's capture but for
-    float rounding, ``meta.generator.renderer`` ``closed-form``."""
+    float rounding, ``meta.generator.renderer`` ``closed-form``.
+
+    ``arrays``: :func:`closed_form_arrays` of a scene with the same :func:`closed_form_key`, rendered before (a
+    worker's in-memory cache); the capture holds views of them, so give a copy that nothing else changes.
+    """
     from .render import assemble
 
-    arrays = closed_form_arrays(scene)
+    arrays = closed_form_arrays(scene) if arrays is None else arrays
     capture = assemble(scene, arrays, key=closed_form_key(scene))
     meta = dict(capture.meta)
     meta["generator"] = {**meta["generator"], "renderer": NAME}

@@ -90,9 +90,7 @@ def _sweep(args: argparse.Namespace) -> int:
     )
     s = on_executor(args, run_sweep, sweep, args.out, progress=not args.quiet, cache_dir=cache)
     print(
-        f"sweep {sweep.name}: ran {s.ran} task(s), skipped {s.skipped} already done, {s.failed} failed; "
-        f"renders: {s.rendered} rendered, {s.reused} task(s) re-used a render; {s.seconds:.1f} s; "
-        + ("complete: results.parquet written" if s.complete else "INCOMPLETE"),
+        f"sweep {sweep.name}: {s.line()}; " + ("complete: results.parquet written" if s.complete else "INCOMPLETE"),
         file=sys.stderr,
     )
     print(args.out)  # the result: the results folder (complete or not: the exit status says)

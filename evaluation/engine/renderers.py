@@ -17,6 +17,7 @@ from __future__ import annotations
 import copy
 import inspect
 import json
+from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
@@ -158,6 +159,11 @@ class Renderer:
     def prepare(self, scene: dict, *, cache_dir: Path | None) -> bool:
         """Render ``scene`` into the cache if it is not there; True if it rendered."""
         return False
+
+    def on_disk(self, scene: dict) -> bool:
+        """Whether ``scene``'s render is made ahead of its tasks and cached on disk (:attr:`prerender`), not made
+        by each task."""
+        return self.prerender
 
     def renders_per_seed(self, scene: dict) -> bool:
         """Whether the seed changes the render itself (a camera that moves per shot), not only what follows it."""
@@ -314,11 +320,17 @@ class MitsubaRenderer(Renderer):
 class ClosedFormRenderer(MitsubaRenderer):
     """Scene files rendered in closed form (:mod:`nearlight.generator.closed_form`): Mitsuba's capture by
     arithmetic, numpy only, for the scenes it covers (a scene it does not cover is a one-line error naming the
-    key). Milliseconds per render, so nothing is cached."""
+    key). Milliseconds per render: nothing goes to disk, but each worker process keeps its last
+    :attr:`KEEP` renders (the arrays :func:`~nearlight.generator.closed_form.closed_form_arrays` returns) in
+    memory by render key, since a sweep's tasks of one render (its seeds, methods, analyzer angles) come
+    together; each task's capture is assembled from its own copy, so no task sees another's changes."""
 
     name = "closed-form"
     prerender = False
     extra = None
+    #: Renders a worker process keeps (a 160x120 render is about 2 MB).
+    KEEP = 8
+    _kept: OrderedDict[str, Any] = OrderedDict()
 
     def validate(self, scene: dict, *, where: str) -> None:
         from ...generator.closed_form import not_covered
@@ -338,9 +350,18 @@ class ClosedFormRenderer(MitsubaRenderer):
         return False
 
     def render(self, scene: dict, *, cache_dir: Path | None) -> Any:
-        from ...generator.closed_form import render_closed_form
+        from ...generator.closed_form import closed_form_arrays, closed_form_key, render_closed_form
 
-        return render_closed_form(self._scene(scene))
+        parsed = self._scene(scene)
+        key = closed_form_key(parsed)  # the render, not what is made of it (analyzer angles, seed: assemble's)
+        kept = ClosedFormRenderer._kept
+        if key in kept:
+            kept.move_to_end(key)
+        else:
+            kept[key] = closed_form_arrays(parsed)
+            while len(kept) > self.KEEP:
+                kept.popitem(last=False)
+        return render_closed_form(parsed, arrays={k: v.copy() for k, v in kept[key].items()})
 
 
 class AutoRenderer(MitsubaRenderer):
@@ -362,6 +383,9 @@ class AutoRenderer(MitsubaRenderer):
 
     def used_by(self, scene: dict) -> str:
         return self.chosen(scene).name
+
+    def on_disk(self, scene: dict) -> bool:
+        return self.chosen(scene).prerender
 
     def render_key(self, scene: dict) -> str:
         return self.chosen(scene).render_key(scene)

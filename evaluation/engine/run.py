@@ -37,17 +37,25 @@ from .workers import completed, executing
 @dataclasses.dataclass
 class RunSummary:
     """What a run did. Attributes: tasks in the sweep, tasks run now, tasks skipped as
-    already done, renders made, tasks that re-used a render, failed tasks, wall seconds,
-    and whether the sweep is now complete."""
+    already done, renders made ahead and cached on disk, tasks that re-used such a render, tasks
+    that made their own (closed form, analytic, or no cache), failed tasks, wall seconds, and
+    whether the sweep is now complete."""
 
     tasks: int
     ran: int
     skipped: int
     rendered: int
     reused: int
+    own: int
     failed: int
     seconds: float
     complete: bool
+
+    def line(self) -> str:
+        """The summary the verbs print: ``ran N task(s), skipped …; renders: …; S s``."""
+        own = f", {self.own} task(s) rendered their own" if self.own else ""
+        return (f"ran {self.ran} task(s), skipped {self.skipped} already done, {self.failed} failed; renders: "
+                f"{self.rendered} rendered, {self.reused} task(s) re-used a render{own}; {self.seconds:.1f} s")
 
 
 def task_payload(task: Task, sweep: Sweep) -> dict[str, Any]:
@@ -199,7 +207,8 @@ def run_sweep(
     render_errors: dict[str, str] = {}
     running = f"sweep {sweep.name} (methods {', '.join(m.label for m in sweep.methods)})"
     with executing(workers, scheduler, running=running) as executor:
-        keys = list(dict.fromkeys(t.render_key for t in todo)) if renderer.prerender and cache_dir else []
+        cached = [t for t in todo if renderer.on_disk(t.scene)] if renderer.prerender and cache_dir else []
+        keys = list(dict.fromkeys(t.render_key for t in cached))
         if keys:
             scenes = {t.render_key: t.scene for t in todo}
             futs = {executor.submit(renderer.prepare, scenes[k], cache_dir=Path(cache_dir)): k for k in keys}
@@ -232,7 +241,8 @@ def run_sweep(
         ran=ran,
         skipped=len(sweep.tasks) - ran,
         rendered=rendered,
-        reused=ran - rendered if renderer.prerender and cache_dir else 0,
+        reused=len(cached) - rendered,
+        own=ran - len(cached),
         failed=failed,
         seconds=time.perf_counter() - t_start,
         complete=complete,

@@ -67,9 +67,7 @@ def _gsa(args: argparse.Namespace) -> int:
         )
         s = on_executor(args, run_sweep, sweep, out, progress=not args.quiet, cache_dir=cache, command=command)
         print(
-            f"gsa {study.name} {name}: ran {s.ran} task(s), skipped {s.skipped} already done, {s.failed} failed; "
-            f"renders: {s.rendered} rendered, {s.reused} task(s) re-used a render; {s.seconds:.1f} s; "
-            + ("complete" if s.complete else "INCOMPLETE"),
+            f"gsa {study.name} {name}: {s.line()}; " + ("complete" if s.complete else "INCOMPLETE"),
             file=sys.stderr,
         )
         if s.complete:

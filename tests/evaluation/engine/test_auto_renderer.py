@@ -87,3 +87,47 @@ def test_the_report_says_which_renderer_made_the_rows(tmp_path):
     rows = pd.DataFrame({"renderer": ["closed-form"] * 5 + ["mitsuba"] * 2})
     assert renderers_line(rows) == "rendered by closed-form (5 tasks), mitsuba (2)"
     assert renderers_line(rows.iloc[:5]) == "rendered by closed-form"
+
+
+def test_a_worker_renders_a_closed_form_scene_once_and_each_task_gets_its_own_capture(monkeypatch):
+    """The per-worker cache: the second task of a render takes the kept arrays (no second render), its capture is
+    the uncached one exactly, another analyzer stack of the same render is assembled for its own angles, and a
+    task that scribbles on its capture leaves the next task's untouched."""
+    import numpy as np
+
+    from nearlight.evaluation.engine import renderers
+    from nearlight.files.yamlfile import load_yaml_file
+    from nearlight.generator import closed_form, load_scene
+
+    scene = load_yaml_file(ROOT / "scenes" / "ts_board.yaml", what="scene file")
+    scene["camera"]["resolution"] = [32, 24]
+    scene["lamp"]["position"] = [0.0512, 0.1498, 0.3501]  # a render no other test keeps
+    calls = []
+    real = closed_form.closed_form_arrays
+    monkeypatch.setattr(closed_form, "closed_form_arrays", lambda s: calls.append(1) or real(s))
+    r = renderers.ClosedFormRenderer()
+    first = r.render(scene, cache_dir=None)
+    first.stack[...] = -1.0  # a task that changes its capture in place
+    first.extra["S0"][...] = -1.0
+    again = r.render(scene, cache_dir=None)
+    three = copy.deepcopy(scene)
+    three["capture"] = {**scene.get("capture", {}), "analyzer_angles_deg": [0, 60, 120]}
+    other = r.render(three, cache_dir=None)
+    assert len(calls) == 1
+    plain = closed_form.render_closed_form(load_scene(copy.deepcopy(scene)))
+    np.testing.assert_array_equal(again.stack, plain.stack)
+    np.testing.assert_array_equal(again.extra["S0"], plain.extra["S0"])
+    np.testing.assert_array_equal(other.stack, closed_form.render_closed_form(load_scene(three)).stack)
+    assert other.stack.shape[0] == 3
+
+
+def test_the_summary_counts_tasks_that_rendered_their_own(tmp_path):
+    """``auto`` renders a closed-form scene in its task, a mesh ahead with Mitsuba: the summary says which is
+    which (it said every closed-form task "re-used a render" before)."""
+    sweep = {**copy.deepcopy(SWEEP), "axes": {"set": {"board": {}, "torus": SWEEP["axes"]["set"]["torus"]}},
+             "seeds": 1, "set": {"camera.resolution": [16, 12]}}  # fmt: skip
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(sweep))
+    s = run_sweep(load_sweep(path), tmp_path / "out", progress=False)
+    assert (s.ran, s.rendered, s.reused, s.own) == (2, 1, 0, 1)
+    assert "1 rendered, 0 task(s) re-used a render, 1 task(s) rendered their own" in s.line()
