@@ -15,7 +15,8 @@ def set_dotted(doc: dict[str, Any], key: str, value: Any, *, where: str) -> None
     """Set ``doc["a"]["b"] = value`` for ``key = "a.b"``, creating sections on the way.
 
     A list of sections on the way is indexed by a number from 0: ``lamps.1.position`` is
-    ``doc["lamps"][1]["position"]`` (a list of numbers is a value, not a section).
+    ``doc["lamps"][1]["position"]`` (a list of numbers is a value, not a section, but its last
+    part may index one of its numbers: ``nuisances.calibration.position_m.0``, a study's input).
 
     Raises
     ------
@@ -32,7 +33,8 @@ def set_dotted(doc: dict[str, Any], key: str, value: Any, *, where: str) -> None
             child = node[_index(node, part, parts[:i], where)]
         else:
             child = node.setdefault(part, {})
-        if not (isinstance(child, dict) or _sections(child)):
+        last_number = i == len(parts) - 2 and isinstance(child, list) and parts[-1].isdigit()
+        if not (isinstance(child, dict) or _sections(child) or last_number):
             raise UserError(f"{where}: {'.'.join(parts[: i + 1])}: is not a section, cannot set {key}")
         node = child
     if isinstance(node, list):

@@ -4,14 +4,19 @@ Written by ``nearlight gsa`` once the design's sweep is complete (or, with
 whatever rows exist, when it is not: the report then says how many blocks
 were analysed). Files:
 
-- ``indices.csv``: per method × metric × input, SALib's indices with the
-  half-widths of their bootstrap intervals (``sobol``: ``S1``, ``S1_conf``,
-  ``ST``, ``ST_conf``; ``morris``: ``mu``, ``mu_star``, ``mu_star_conf``,
-  ``sigma``), and ``blocks`` (analysed) of ``n_blocks``;
+- ``indices.csv``: per method × metric × input, the indices with their
+  bootstrap intervals (``sobol``: :data:`~nearlight.evaluation.gsa.study.SOBOL_COLUMNS`,
+  percentile intervals and the chance floor, :mod:`nearlight.evaluation.gsa.sobol`;
+  ``morris``: SALib's ``mu``, ``mu_star``, ``mu_star_conf``, ``sigma``), and
+  ``blocks`` (analysed) of ``n_blocks``;
+- ``convergence.csv`` (Sobol', N ≥ 8): the same at N/4, N/2 and N, and
+  ``convergence_<method>.png``: each input's ST against N;
 - ``outputs.csv``: per sample and method, the inputs' values and every
   analysed metric (the mean over the sample's seeds), in sample order;
 - ``gsa.md``: the headline (which input matters most, per method and
-  metric), one table per metric, the plots linked;
+  metric; Sobol': the inputs above the floor ranked, the others named as
+  not distinguishable from zero), one table per metric, a sentence per
+  influential input on where in its range it matters, the plots linked;
 - ``indices_<metric>.png``: a bar chart per metric, inputs × methods
   (``ST`` with ``S1`` inside it, or ``mu_star``, with their intervals);
 - ``scatter_<method>.png``: the first metric against each input, one panel
@@ -28,6 +33,7 @@ import pandas as pd
 from ...files.atomic import write_text
 from ...files.figures import pyplot, save_png
 from ...files.outputs import check_files_in, make_folder
+from .sobol import distinguishable
 from .study import DesignRun, Input, Study, analyse, outputs
 from ..engine.provenance import record
 from ..views.report import frame_table, renderers_line
@@ -67,32 +73,120 @@ def _key(design: str) -> str:
 
 
 def headline(indices: pd.DataFrame, design: str) -> pd.DataFrame:
-    """Per method and metric, the inputs ranked by ``ST`` (Sobol') or ``mu_star`` (Morris), largest first."""
+    """Per method and metric, the inputs ranked by ``ST`` (Sobol') or ``mu_star`` (Morris), largest first.
+
+    Sobol': only the inputs whose ``ST`` interval stands above the chance floor
+    (:func:`~nearlight.evaluation.gsa.sobol.distinguishable`) are ranked, each with its interval; the rest are
+    named as not distinguishable from zero, beside the floor."""
     key = _key(design)
     rows = []
     for (method, metric), g in indices.groupby(["method", "metric"], sort=False):
         g = g.dropna(subset=[key]).sort_values(key, ascending=False)
-        ranked = ", ".join(f"{r.input} {getattr(r, key):.2g}" for r in g.itertuples())
-        rows.append({"method": method, "metric": metric, f"inputs by {key}": ranked or "n/a (no block analysed)"})
+        if design != "sobol":
+            ranked = ", ".join(f"{r.input} {getattr(r, key):.2g}" for r in g.itertuples())
+            rows.append({"method": method, "metric": metric, f"inputs by {key}": ranked or "n/a (no block analysed)"})
+            continue
+        above = g[[distinguishable(r.ST_lo, r.ST_floor) for r in g.itertuples()]]
+        below = g.drop(above.index)
+        ranked = ", ".join(f"{r.input} {r.ST:.2g} [{r.ST_lo:.2g}, {r.ST_hi:.2g}]" for r in above.itertuples())
+        rows.append({"method": method, "metric": metric,
+                     "inputs by ST [interval], above the floor": ranked or ("none" if len(g) else "n/a (no block analysed)"),
+                     "not distinguishable from zero": ", ".join(below["input"]) or "none",
+                     "floor (ST)": f"{g['ST_floor'].iloc[0]:.2g}" if len(g) else "n/a"})  # fmt: skip
     return pd.DataFrame(rows)
 
 
 def _cells(indices: pd.DataFrame, metric: str, design: str) -> pd.DataFrame:
-    """One metric's table: a row per method, a column per input, ``ST ± conf (S1 ± conf)`` or ``μ* ± conf (σ)``."""
+    """One metric's table: a row per input, a column per method, ``ST [lo, hi] (S1 [lo, hi])`` with ``≈ 0`` where the
+    total index does not stand above the floor (Sobol'), or ``μ* ± conf (σ)`` (Morris)."""
     g = indices[indices["metric"] == metric]
 
     def cell(r: pd.Series) -> str:
         if pd.isna(r.ST if design == "sobol" else r.mu_star):
             return "n/a"
         if design == "sobol":
-            return f"{r.ST:.2f} ± {r.ST_conf:.2f} ({r.S1:.2f} ± {r.S1_conf:.2f})"
+            mark = "" if distinguishable(r.ST_lo, r.ST_floor) else " ≈ 0"
+            return f"{r.ST:.2f} [{r.ST_lo:.2f}, {r.ST_hi:.2f}]{mark} ({r.S1:.2f} [{r.S1_lo:.2f}, {r.S1_hi:.2f}])"
         return f"{r.mu_star:.3g} ± {r.mu_star_conf:.2g} ({r.sigma:.3g})"
 
-    wide = g.assign(cell=g.apply(cell, axis=1)).pivot_table(index="method", columns="input", values="cell",
+    wide = g.assign(cell=g.apply(cell, axis=1)).pivot_table(index="input", columns="method", values="cell",
                                                              aggfunc="first", sort=False)  # fmt: skip
     blocks = g.groupby("method", sort=False)["blocks"].first()
-    wide["blocks"] = [f"{blocks[m]}/{g['n_blocks'].iloc[0]}" for m in wide.index]
-    return wide.reset_index()
+    extra = {"input": "blocks", **{m: f"{blocks[m]}/{g['n_blocks'].iloc[0]}" for m in wide.columns}}
+    if design == "sobol":
+        floor = g.groupby("method", sort=False)["ST_floor"].first()
+        extra = [{"input": "floor (ST)", **{m: f"{floor[m]:.2f}" for m in wide.columns}}, extra]
+    return pd.concat([wide.reset_index(), pd.DataFrame(extra if isinstance(extra, list) else [extra])],
+                     ignore_index=True)  # fmt: skip
+
+
+#: Fractions of a Sobol' design's base samples its convergence table analyses (N/4, N/2, N).
+CONVERGENCE = (4, 2, 1)
+
+
+def convergence_table(study: Study, run: DesignRun, results: pd.DataFrame) -> pd.DataFrame:
+    """Every Sobol' index of every method × metric analysed on the first N/4, N/2 and N base samples (a scrambled
+    Sobol' sequence's first 2^m points are a balanced design of their own), with its interval and floor: column
+    ``n``, then :func:`index_table`'s. Empty for Morris or fewer than 8 base samples."""
+    design = run.design
+    if design.method != "sobol" or design.n < 8:
+        return pd.DataFrame()
+    size = design.block(len(study.inputs))
+    frames = []
+    for part in CONVERGENCE:
+        n = design.n // part
+        rows = []
+        for method in run.sweep.methods:
+            for metric in study.metrics:
+                Y = outputs(run, results, metric, method.label)[: n * size]
+                indices, blocks = analyse(study.inputs, design, run.samples[: n * size], Y)
+                rows += [{"n": n, "method": method.label, "metric": metric, **r, "blocks": blocks} for r in indices]
+        frames.append(pd.DataFrame(rows))
+    return pd.concat(frames, ignore_index=True)
+
+
+def plot_convergence(conv: pd.DataFrame, metric: str, method: str, path: Path) -> Path:
+    """Each input's ``ST`` with its interval at N/4, N/2 and N (one line per input), the floor shaded."""
+    plt = pyplot()
+
+    g = conv[(conv["metric"] == metric) & (conv["method"] == method)]
+    fig, ax = plt.subplots(figsize=(6.4, 3.8), constrained_layout=True)
+    ns = sorted(g["n"].unique())
+    floor = g.groupby("n")["ST_floor"].first().reindex(ns)
+    ax.fill_between(ns, 0, floor.to_numpy(), color="0.85", label="floor (chance)")
+    inputs = list(dict.fromkeys(g["input"]))
+    for j, name in enumerate(inputs):
+        m = g[g["input"] == name].set_index("n").reindex(ns)
+        shift = 1 + 0.04 * (j - (len(inputs) - 1) / 2)  # spread the markers of one N apart
+        ax.errorbar(np.asarray(ns) * shift, m["ST"], yerr=[m["ST"] - m["ST_lo"], m["ST_hi"] - m["ST"]], marker="o",
+                    ms=3, capsize=2, lw=1, label=name)  # fmt: skip
+    ax.set_xscale("log", base=2)
+    ax.set_xticks(ns, [str(n) for n in ns])
+    ax.set_xlabel("base samples N")
+    ax.set_ylabel("total index ST")
+    ax.set_title(f"{method}, {metric}: ST at N/4, N/2, N")
+    ax.legend(fontsize=6, ncol=2, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    return save_png(fig, path, dpi=110)
+
+
+def where_it_matters(table: pd.DataFrame, inp: Input, metric: str, method: str) -> str:
+    """One sentence from the scatter: the median of ``metric`` over each quarter of the input's sampled range
+    (each label of a categorical input), and between which quarters it moves most."""
+    t = table[table["method"] == method][[inp.name, metric]].dropna()
+    if t.empty:
+        return f"`{inp.name}`: no finite output."
+    if inp.labels is not None:
+        med = t.groupby(inp.name, sort=False)[metric].median()
+        return f"`{inp.name}`: median {metric} " + ", ".join(f"{v:.3g} for {k}" for k, v in med.items()) + "."
+    x = t[inp.name].astype(float)
+    edges = np.quantile(x, [0, 0.25, 0.5, 0.75, 1])
+    bins = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, 3)
+    med = t[metric].groupby(bins).median().reindex(range(4))
+    steps = np.abs(np.diff(med.to_numpy()))
+    j = int(np.nanargmax(steps)) if np.isfinite(steps).any() else 0
+    quarters = ", ".join(f"{v:.3g} ({edges[i]:.3g}-{edges[i + 1]:.3g})" for i, v in enumerate(med))
+    return (f"`{inp.name}`: median {metric} by quarter of its range {quarters}; it moves most across "
+            f"{edges[j + 1]:.3g} ({med.iloc[j]:.3g} -> {med.iloc[j + 1]:.3g}).")
 
 
 def plot_indices(indices: pd.DataFrame, metric: str, design: str, path: Path) -> Path:
@@ -153,7 +247,9 @@ def check_report_out(study: Study, run: DesignRun, results_dir: str | Path) -> P
     folder = Path(results_dir) / FOLDER
     pngs = {f"indices_{m}.png": "png" for m in study.metrics}
     pngs |= {f"scatter_{_safe(m.label)}.png": "png" for m in run.sweep.methods}
-    check_files_in(folder, {"indices.csv": "report-csv", "outputs.csv": "report-csv", "gsa.md": "report-md", **pngs})
+    pngs |= {f"convergence_{_safe(m.label)}.png": "png" for m in run.sweep.methods}
+    check_files_in(folder, {"indices.csv": "report-csv", "outputs.csv": "report-csv", "convergence.csv": "report-csv",
+                            "gsa.md": "report-md", **pngs})  # fmt: skip
     return folder
 
 
@@ -184,10 +280,15 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
     design = run.design.method
     indices = index_table(study, run, results)
     table = output_table(study, run, results)
+    conv = convergence_table(study, run, results)
     write_text(folder / "indices.csv", indices.to_csv(index=False), what="the report")
     write_text(folder / "outputs.csv", table.to_csv(index=False), what="the report")
-    what = ("Sobol' indices (Saltelli sample, SALib): total ST ± half-width of the bootstrap interval, first-order "
-            "S1 ± its half-width in brackets" if design == "sobol" else
+    if not conv.empty:
+        write_text(folder / "convergence.csv", conv.to_csv(index=False), what="the report")
+    what = ("Sobol' indices (Saltelli sample, SALib's estimators): total ST [percentile bootstrap interval], "
+            "first-order S1 [its interval] in brackets; `≈ 0`: the ST interval does not stand above the floor, "
+            "the index a dummy input gets by chance at this N (Khorashadi Zadeh et al. 2017, as sensobol's "
+            "sobol_dummy: docs/global-sensitivity.md)" if design == "sobol" else
             "Morris screening (SALib): mu* (mean |elementary effect|: the metric's change over a step of the input "
             "divided by the step, per input range) ± half-width of the bootstrap interval, sigma in brackets "
             "(interactions and curvature)")
@@ -204,6 +305,22 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
         png = f"indices_{metric}.png"
         plot_indices(indices, metric, design, folder / png)
         md += [f"## {metric}", "", frame_table(_cells(indices, metric, design)), "", f"![indices of {metric}]({png})", ""]
+    if not conv.empty:
+        md += ["## Convergence", "", f"Every index at N = {', '.join(str(n) for n in sorted(conv['n'].unique()))} "
+               "(the first base samples of the one Saltelli sample): `convergence.csv`; the total indices of "
+               f"{metrics[0]}:", ""]  # fmt: skip
+        for method in methods:
+            png = f"convergence_{_safe(method)}.png"
+            plot_convergence(conv, metrics[0], method, folder / png)
+            md += [f"![{method} convergence]({png})", ""]
+    md += ["## Where each influential input matters", "",
+           (f"From the scatter of {metrics[0]}: each input whose ST stands above the floor" if design == "sobol" else
+            f"From the scatter of {metrics[0]}: each input whose mu* is at least a tenth of the largest"), ""]  # fmt: skip
+    for method in methods:
+        md += [f"**{method}**", ""]
+        md += [f"- {where_it_matters(table, inp, metrics[0], method)}" for inp in _influential(indices, study, method,
+                                                                                                  metrics[0], design)]
+        md += [""]
     md += ["## Scatter plots", "", f"{metrics[0]} against each input (one point per sample).", ""]
     for method in methods:
         png = f"scatter_{_safe(method)}.png"
@@ -212,6 +329,18 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
     write_text(folder / "gsa.md", "\n".join(md), what="the report")
     record(results_dir, command=command, entry_modules=[__name__], inputs=[study.source], part="gsa")
     return folder
+
+
+def _influential(indices: pd.DataFrame, study: Study, method: str, metric: str, design: str) -> list[Input]:
+    """The inputs a reader should act on, largest first: Sobol', ``ST`` above the floor; Morris, ``mu*`` at least
+    a tenth of the largest (screening ranks; a tenth keeps the inputs whose effect is of the leaders' order)."""
+    g = indices[(indices["method"] == method) & (indices["metric"] == metric)].dropna(subset=[_key(design)])
+    if design == "sobol":
+        g = g[[distinguishable(r.ST_lo, r.ST_floor) for r in g.itertuples()]]
+    elif len(g):
+        g = g[g["mu_star"] >= 0.1 * g["mu_star"].max()]
+    by_name = {i.name: i for i in study.inputs}
+    return [by_name[name] for name in g.sort_values(_key(design), ascending=False)["input"]]
 
 
 def _dist(i: Input) -> str:

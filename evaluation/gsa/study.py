@@ -61,6 +61,8 @@ LABEL_AXES = ("bsdf", "object", "polarization", "analyzer_angles", "realism")
 CAMERA_INPUTS = ("viewing_angle", "camera_distance")
 #: Distributions of a numeric input: SALib's name for each.
 DISTRIBUTIONS = {"uniform": "unif", "loguniform": "logunif", "normal": "norm"}
+#: The columns of a Sobol' design's indices (:func:`analyse`).
+SOBOL_COLUMNS = ("S1", "S1_conf", "S1_lo", "S1_hi", "S1_floor", "ST", "ST_conf", "ST_lo", "ST_hi", "ST_floor")
 #: Metrics analysed when the file names none (columns of the result rows).
 DEFAULT_METRICS = ("lamp_position_error_m", "sigma_rel_error", "ks_rel_error")
 
@@ -261,16 +263,20 @@ def analyse(inputs: list[Input], design: Design, X: np.ndarray, Y: np.ndarray) -
     Returns
     -------
     rows : list of dict
-        One per input: ``input`` and, for ``sobol``, ``S1``, ``S1_conf``,
-        ``ST``, ``ST_conf`` (the half-width of the bootstrap interval at
-        ``design.conf_level``); for ``morris``, ``mu``, ``mu_star``,
+        One per input: ``input`` and, for ``sobol``, :data:`SOBOL_COLUMNS`
+        (:func:`nearlight.evaluation.gsa.sobol.sobol_indices`: each index, its
+        percentile bootstrap interval ``_lo`` … ``_hi`` at ``design.conf_level``
+        and its half-width ``_conf``, and the chance floor ``_floor``, the same
+        for every input); for ``morris``, ``mu``, ``mu_star``,
         ``mu_star_conf``, ``sigma`` (in the output's units per unit of the
         input's range: SALib's elementary effects on the unit hypercube).
         All NaN when fewer than 2 blocks are left (or, Sobol', the outputs do not vary).
     blocks : int
         Blocks analysed (of ``design.n``).
     """
-    from SALib.analyze import morris, sobol
+    from SALib.analyze import morris
+
+    from .sobol import sobol_indices
 
     k = len(inputs)
     size = design.block(k)
@@ -278,11 +284,12 @@ def analyse(inputs: list[Input], design: Design, X: np.ndarray, Y: np.ndarray) -
     keep = np.isfinite(Y.reshape(-1, size)).all(axis=1)
     names = [i.name for i in inputs]
     if design.method == "sobol":
-        keys = ("S1", "S1_conf", "ST", "ST_conf")
+        keys = SOBOL_COLUMNS
         if keep.sum() < 2 or np.var(Y[np.repeat(keep, size)]) == 0:
             return [{"input": n, **dict.fromkeys(keys, math.nan)} for n in names], int(keep.sum())
-        res = sobol.analyze(problem(inputs), Y[np.repeat(keep, size)], calc_second_order=False,
-                            num_resamples=design.resamples, conf_level=design.conf_level, seed=design.seed)  # fmt: skip
+        res = sobol_indices(Y[np.repeat(keep, size)], k, resamples=design.resamples, conf_level=design.conf_level,
+                            seed=design.seed)  # fmt: skip
+        res = {key: np.broadcast_to(res[key], (k,)) for key in keys}
     else:
         keys = ("mu", "mu_star", "mu_star_conf", "sigma")
         if keep.sum() < 2:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import re
 
 import pytest
 import yaml
@@ -131,3 +132,18 @@ def test_the_set_axis_is_a_product_with_the_other_axes_and_a_profile_can_replace
     assert sweep.tasks[3].scene["object"]["type"] == "sphere"
     assert sweep.tasks[3].scene["material"]["texture"] == {"kd_contrast": 0.3}
     assert [t.config["set"] for t in load_sweep(doc, check_methods=False, profile="quick").tasks] == ["none", "none"]
+
+
+def test_a_dotted_key_may_end_in_an_index_of_a_list_of_numbers():
+    """A study's input drives one number of a vector (``nuisances.calibration.position_m.0``); a name there, or an
+    index past the end, stays a one-line error."""
+    from nearlight.errors import UserError
+    from nearlight.files.dotted import set_dotted
+
+    doc = {"calibration": {"position_m": [0.0, 0.0, 0.0]}}
+    set_dotted(doc, "calibration.position_m.0", 0.002, where="w")
+    assert doc == {"calibration": {"position_m": [0.002, 0.0, 0.0]}}
+    for key, says in (("calibration.position_m.x", "calibration.position_m: is not a section"),
+                      ("calibration.position_m.3", "calibration.position_m.3: calibration.position_m is a list of 3")):
+        with pytest.raises(UserError, match=re.escape(f"w: {says}")):
+            set_dotted(doc, key, 1.0, where="w")

@@ -45,11 +45,16 @@ def test_saltelli_sample_and_sobol_analysis_recover_the_ishigami_indices_within_
     st = np.array([r["ST"] for r in rows])
     s1c = np.array([r["S1_conf"] for r in rows])
     stc = np.array([r["ST_conf"] for r in rows])
-    # the golden inside the 95 % bootstrap interval, and the intervals narrow enough to separate the inputs
-    # (at N = 1024 SALib's half-widths are ~0.03-0.06; 0.1 keeps the check from passing on vague intervals)
-    assert np.all(np.abs(s1 - ISHIGAMI_S1) <= s1c), (s1, s1c)
-    assert np.all(np.abs(st - ISHIGAMI_ST) <= stc), (st, stc)
+    # the golden inside the 95 % percentile bootstrap interval, and the intervals narrow enough to separate the
+    # inputs (at N = 1024 the half-widths are ~0.03-0.06; 0.1 keeps the check from passing on vague intervals)
+    assert _inside(rows, "S1", ISHIGAMI_S1) and _inside(rows, "ST", ISHIGAMI_ST), rows
+    assert np.all(s1 <= [r["S1_hi"] for r in rows]) and np.all(st >= [r["ST_lo"] for r in rows])
     assert np.all(s1c < 0.1) and np.all(stc < 0.1)
+
+
+def _inside(rows: list[dict], key: str, golden) -> bool:
+    """Whether every golden value lies in its index's percentile interval."""
+    return all(r[f"{key}_lo"] <= g <= r[f"{key}_hi"] for r, g in zip(rows, golden))
 
 
 def test_at_n_4096_every_ishigami_index_is_resolved_to_a_half_width_of_005():
@@ -61,10 +66,42 @@ def test_at_n_4096_every_ishigami_index_is_resolved_to_a_half_width_of_005():
     rows, blocks = analyse(ISHIGAMI_INPUTS, design, X, ishigami(X))
     assert blocks == 4096
     for key, golden in (("S1", ISHIGAMI_S1), ("ST", ISHIGAMI_ST)):
-        got = np.array([r[key] for r in rows])
         conf = np.array([r[f"{key}_conf"] for r in rows])
-        assert np.all(np.abs(got - golden) <= conf), (key, got, conf)
+        assert _inside(rows, key, golden), (key, rows)
         assert np.all(conf <= 0.05), (key, conf)
+
+
+def test_an_input_the_model_never_reads_is_within_the_chance_floor_and_the_floor_is_above_zero():
+    """Issue 37's floor: Ishigami with a fourth input it ignores, at N = 1024. The ignored input gets S1 = ST = 0
+    from SALib's estimators (f(A_B^4) = f(A)), so its interval is [0, 0]; the floor, the dummy's index by the
+    Khorashadi Zadeh estimators (evaluation/gsa/sobol.py), is what chance gives at this N: measured 0.065 (ST) and
+    6.6e-5 (S1: that estimator's noise falls as N^-1.5) here, so bounded below by 0.01 and 1e-7, and above by 0.1. x1 and x2 stand
+    above it; x3 has S1 = 0 (its effect is all interaction) and is not distinguishable on S1 alone."""
+    from nearlight.evaluation.gsa.sobol import distinguishable
+
+    inputs = [*ISHIGAMI_INPUTS, Input("ignored", "uniform", (0.0, 1.0))]
+    design = Design("sobol", "sobol", n=1024, seed=7)
+    X = sample(inputs, design)
+    rows, _ = analyse(inputs, design, X, ishigami(X))
+    ignored = rows[3]
+    assert ignored["S1"] == ignored["ST"] == ignored["ST_lo"] == ignored["ST_hi"] == 0.0
+    floor = ignored["ST_floor"]
+    assert 0.01 < floor < 0.1 and 1e-7 < ignored["S1_floor"] < 0.1, ignored
+    assert all(r["ST_floor"] == floor for r in rows)  # one floor per method and metric
+    assert [distinguishable(r["ST_lo"], r["ST_floor"]) for r in rows] == [True, True, True, False]
+    assert [distinguishable(r["S1_lo"], r["S1_floor"]) for r in rows] == [True, True, False, False]
+
+
+def test_the_floor_shrinks_as_one_over_root_n():
+    """The dummy's floor is sampling noise: 16 times the base samples, about a quarter of the floor (measured
+    ratio 0.26 at N = 256 -> 4096 for Ishigami, seed 7: 0.131 -> 0.034; held to 0.15-0.4)."""
+    inputs = [*ISHIGAMI_INPUTS, Input("ignored", "uniform", (0.0, 1.0))]
+    floors = []
+    for n in (256, 4096):
+        design = Design("sobol", "sobol", n=n, seed=7)
+        X = sample(inputs, design)
+        floors.append(analyse(inputs, design, X, ishigami(X))[0][0]["ST_floor"])
+    assert 0.15 < floors[1] / floors[0] < 0.4, floors
 
 
 def test_a_failed_output_drops_its_saltelli_block_and_the_rest_still_recover_the_indices():
@@ -74,8 +111,7 @@ def test_a_failed_output_drops_its_saltelli_block_and_the_rest_still_recover_the
     Y[[3, 17, 400]] = np.nan  # rows of blocks 0, 3 and 80 (5 rows a block)
     rows, blocks = analyse(ISHIGAMI_INPUTS, design, X, Y)
     assert blocks == 1021
-    st = np.array([r["ST"] for r in rows])
-    assert np.all(np.abs(st - ISHIGAMI_ST) <= np.array([r["ST_conf"] for r in rows]))
+    assert _inside(rows, "ST", ISHIGAMI_ST), rows
 
 
 @pytest.mark.parametrize("dist, bounds", [("uniform", (2.0, 4.0)), ("loguniform", (0.01, 1.0))])
@@ -88,8 +124,7 @@ def test_linear_model_sobol_indices_are_the_squared_coefficients_shares(dist, bo
     U = (np.log(X / lo) / np.log(hi / lo)) if dist == "loguniform" else (X - lo) / (hi - lo)  # uniform on [0, 1]
     rows, _ = analyse(inputs, design, X, U @ c)
     want = c**2 / np.sum(c**2)  # 16/21, 4/21, 1/21
-    for r, w in zip(rows, want):
-        assert abs(r["S1"] - w) <= r["S1_conf"] and abs(r["ST"] - w) <= r["ST_conf"], (r, w)
+    assert _inside(rows, "S1", want) and _inside(rows, "ST", want), (rows, want)
 
 
 def test_morris_elementary_effects_of_a_linear_model_are_its_coefficients():
@@ -173,11 +208,17 @@ def test_a_study_through_the_engine_and_the_cli_recovers_the_sobol_indices_of_a_
     want = pd.Series({"lamp_distance": 16 / 23, "roughness": 4 / 23, "bsdf": 3 / 23})
     for name, w in want.items():
         r = got.loc[name]
-        assert abs(r.S1 - w) <= r.S1_conf and abs(r.ST - w) <= r.ST_conf, (name, r.to_dict(), w)
+        assert r.S1_lo <= w <= r.S1_hi and r.ST_lo <= w <= r.ST_hi, (name, r.to_dict(), w)
     assert (got["blocks"] == 64).all()
     md = (report / "gsa.md").read_text()
-    assert re.search(r"\| model \| lamp_position_error_m \| lamp_distance 0\.\d+, roughness 0\.\d+, bsdf 0\.\d+ \|", md)
-    for png in ("indices_lamp_position_error_m.png", "scatter_model.png"):
+    # at N = 64 the chance floor is 0.19 (measured): roughness (0.17) and bsdf (0.13) are real but not yet told
+    # apart from chance; the report says so rather than ranking them
+    assert re.search(r"\| model \| lamp_position_error_m \| lamp_distance 0\.\d+ \[0\.\d+, 0\.\d+\] \| "
+                     r"roughness, bsdf \| 0\.1\d \|", md), md
+    assert "## Convergence" in md and (report / "convergence.csv").is_file()
+    conv = pd.read_csv(report / "convergence.csv")
+    assert sorted(conv["n"].unique()) == [16, 32, 64] and len(conv) == 3 * 3
+    for png in ("indices_lamp_position_error_m.png", "scatter_model.png", "convergence_model.png"):
         assert (report / png).read_bytes()[:4] == b"\x89PNG"
     prov = json.loads((tmp_path / "res" / "main" / "provenance.json").read_text())
     assert set(prov["parts"]) == {"results", "gsa"}
@@ -239,17 +280,31 @@ GLOBAL = Path(__file__).resolve().parents[3] / "sweeps" / "global.yaml"
 def test_each_sample_of_the_shipped_study_sets_the_scene_keys_its_inputs_drive():
     study = load_study(GLOBAL, settings={"designs.screening.n": 2}, design="screening")
     run = study.runs["screening"]
-    assert run.samples.shape == (14, 6) and [m.label for m in run.sweep.methods] == ["paper-init", "paper", "full", "distant"]
+    assert run.samples.shape == (2 * 15, 14)
+    assert [m.label for m in run.sweep.methods] == ["paper-init", "paper", "full", "distant", "paper-init (model origin)",
+                                                    "paper (model origin, bounded AM)"]  # fmt: skip
     names = [i.name for i in study.inputs]
+    labels = {i.name: i for i in study.inputs}
     for x, ids in zip(run.samples, run.sample_tasks):
         v = dict(zip(names, x))
         task = next(t for t in run.sweep.tasks if t.task_id == ids["full"][0])
+        scene = task.scene
+        assert scene["object"]["type"] == labels["object"].label(v["object"])
+        assert scene["material"]["model"] == labels["bsdf"].label(v["bsdf"])
+        assert scene["lamp"]["radius"] == pytest.approx(v["lamp.radius"]) and scene["lamp"]["anisotropy_k"] == v["lamp.anisotropy_k"]
+        nz = scene["nuisances"]
+        assert (nz["camera"]["gamma"], nz["camera"]["vignetting"], nz["range"]["quantum_m"]) == pytest.approx(
+            (v["nuisances.camera.gamma"], v["nuisances.camera.vignetting"], v["nuisances.range.quantum_m"]))
+        assert nz["calibration"]["position_m"] == pytest.approx([v["nuisances.calibration.position_m.0"], 0.0, 0.0])
         cam = np.asarray(task.scene["camera"]["position"])  # look_at is the origin, the board's normal +z
         assert np.linalg.norm(cam) == pytest.approx(v["camera_distance"], rel=1e-9)
         assert math.degrees(math.acos(cam[2] / np.linalg.norm(cam))) == pytest.approx(v["viewing_angle"], abs=1e-9)
         assert cam[0] == pytest.approx(0.0, abs=1e-12) and cam[1] < 0  # in the base camera's plane, on its side
         assert np.linalg.norm(task.scene["lamp"]["position"]) == pytest.approx(v["lamp_distance"], rel=1e-9)
-        assert task.scene["material"]["sigma"] == pytest.approx(v["roughness"], rel=1e-12)
+        if scene["material"]["model"] == "torrance_sparrow":  # Ward's alpha is sqrt(2) sigma (convert_bsdf)
+            assert scene["material"]["sigma"] == pytest.approx(v["roughness"], rel=1e-12)
+        else:
+            assert scene["material"]["alpha"] == pytest.approx(math.sqrt(2) * v["roughness"], rel=1e-12)
         assert task.noise == {"full_well": pytest.approx(v["noise.full_well"]), "read_noise": 5.0, "bits": 12}
         assert task.range_noise == pytest.approx(v["range_noise"]) and task.seed == 0
 
