@@ -25,6 +25,7 @@ were analysed). Files:
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +34,7 @@ import pandas as pd
 from ...files.atomic import write_text
 from ...files.figures import pyplot, save_png
 from ...files.outputs import check_files_in, make_folder
+from .morris import step_effects
 from .sobol import distinguishable
 from .study import DesignRun, Input, Study, analyse, outputs
 from ..engine.provenance import record
@@ -107,12 +109,13 @@ def _cells(indices: pd.DataFrame, metric: str, design: str) -> pd.DataFrame:
         if design == "sobol":
             mark = "" if distinguishable(r.ST_lo, r.ST_floor) else " ≈ 0"
             return f"{r.ST:.2f} [{r.ST_lo:.2f}, {r.ST_hi:.2f}]{mark} ({r.S1:.2f} [{r.S1_lo:.2f}, {r.S1_hi:.2f}])"
-        return f"{r.mu_star:.3g} ± {r.mu_star_conf:.2g} ({r.sigma:.3g})"
+        return f"{r.mu_star:.3g} ± {r.mu_star_conf:.2g} ({r.sigma:.3g}; {int(r.steps)} steps)"
 
     wide = g.assign(cell=g.apply(cell, axis=1)).pivot_table(index="input", columns="method", values="cell",
                                                              aggfunc="first", sort=False)  # fmt: skip
     blocks = g.groupby("method", sort=False)["blocks"].first()
-    extra = {"input": "blocks", **{m: f"{blocks[m]}/{g['n_blocks'].iloc[0]}" for m in wide.columns}}
+    extra = {"input": "blocks" if design == "sobol" else "whole trajectories",
+             **{m: f"{blocks[m]}/{g['n_blocks'].iloc[0]}" for m in wide.columns}}  # fmt: skip
     if design == "sobol":
         floor = g.groupby("method", sort=False)["ST_floor"].first()
         extra = [{"input": "floor (ST)", **{m: f"{floor[m]:.2f}" for m in wide.columns}}, extra]
@@ -167,6 +170,29 @@ def plot_convergence(conv: pd.DataFrame, metric: str, method: str, path: Path) -
     ax.set_title(f"{method}, {metric}: ST at N/4, N/2, N")
     ax.legend(fontsize=6, ncol=2, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     return save_png(fig, path, dpi=110)
+
+
+def effects_by_level(inputs: list[Input], design_levels: int, X: np.ndarray, Y: np.ndarray) -> pd.DataFrame:
+    """Morris ``mu*`` of each input over the trajectory steps taken at each level of each categorical input.
+
+    A Morris step moves one input with every other held, so its elementary effect
+    (:func:`~nearlight.evaluation.gsa.morris.step_effects`, the design's ``mu_star`` units) belongs to the level
+    the categorical inputs had there. One row per input, a column ``"<categorical>=<label>"`` per level; NaN
+    where no usable step of that input was taken at that level (and for the categorical input at its own).
+    """
+    effects, base = step_effects(X, Y, design_levels)
+    columns = {}
+    for c, cat in enumerate(inputs):
+        if cat.labels is None:
+            continue
+        level = np.minimum(np.floor(X[base, c]).astype(int), len(cat.labels) - 1)
+        for lv, (label, _) in enumerate(cat.labels):
+            col = []
+            for i in range(len(inputs)):
+                e = effects[:, i][(level[:, i] == lv) & np.isfinite(effects[:, i])]
+                col.append(float(np.abs(e).mean()) if i != c and e.size else math.nan)
+            columns[f"{cat.name}={label}"] = col
+    return pd.DataFrame({"input": [i.name for i in inputs], **columns}) if columns else pd.DataFrame()
 
 
 def where_it_matters(table: pd.DataFrame, inp: Input, metric: str, method: str) -> str:
@@ -289,13 +315,15 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
             "first-order S1 [its interval] in brackets; `≈ 0`: the ST interval does not stand above the floor, "
             "the index a dummy input gets by chance at this N (Khorashadi Zadeh et al. 2017, as sensobol's "
             "sobol_dummy: docs/global-sensitivity.md)" if design == "sobol" else
-            "Morris screening (SALib): mu* (mean |elementary effect|: the metric's change over a step of the input "
-            "divided by the step, per input range) ± half-width of the bootstrap interval, sigma in brackets "
-            "(interactions and curvature)")
+            "Morris screening (SALib's design): mu* (mean |elementary effect|: the metric's change over a step of "
+            "the input divided by the step, per input range) ± half-width of the percentile bootstrap interval, "
+            "sigma (interactions and curvature) and the steps used in brackets: a step is used where the method "
+            "answered at both ends (nearlight.evaluation.gsa.morris), so a refusal costs its two steps, not its "
+            "trajectory; the `failed` output says what made the method refuse")
     md = [f"# Sweep report: global sensitivity of {study.name}, design {run.design.name}", "",
-          f"{what}, at {int(100 * run.design.conf_level)} % confidence; `blocks`: "
-          + ("Saltelli base samples" if design == "sobol" else "trajectories")
-          + " analysed (a block with a failed or non-finite output is dropped whole).", "",
+          f"{what}, at {int(100 * run.design.conf_level)} % confidence; "
+          + ("`blocks`: Saltelli base samples analysed (a block with a failed or non-finite output is dropped whole)."
+             if design == "sobol" else "`whole trajectories`: trajectories with every run answered."), "",
           f"Design: `{design}`, n = {run.design.n}, seed {run.design.seed}, {len(run.samples)} samples, "
           f"{len(run.sweep.tasks)} tasks" + ("" if complete else " (INCOMPLETE: rows missing)") + f"; "
           f"{renderers_line(results)}.", "",
@@ -313,6 +341,14 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
             png = f"convergence_{_safe(method)}.png"
             plot_convergence(conv, metrics[0], method, folder / png)
             md += [f"![{method} convergence]({png})", ""]
+    if design == "morris" and any(i.labels is not None for i in study.inputs):
+        md += ["## Where an input's effect depends on a categorical input", "",
+               f"Morris mu* of {metrics[0]} over the steps taken at each level of each categorical input "
+               "(steps with both ends answered):", ""]  # fmt: skip
+        for method in methods:
+            Y = outputs(run, results, metrics[0], method)
+            by = effects_by_level(study.inputs, run.design.levels, run.samples, Y)
+            md += [f"**{method}**", "", frame_table(by.round(4)), ""]
     md += ["## Where each influential input matters", "",
            (f"From the scatter of {metrics[0]}: each input whose ST stands above the floor" if design == "sobol" else
             f"From the scatter of {metrics[0]}: each input whose mu* is at least a tenth of the largest"), ""]  # fmt: skip

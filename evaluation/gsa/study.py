@@ -63,6 +63,10 @@ CAMERA_INPUTS = ("viewing_angle", "camera_distance")
 DISTRIBUTIONS = {"uniform": "unif", "loguniform": "logunif", "normal": "norm"}
 #: The columns of a Sobol' design's indices (:func:`analyse`).
 SOBOL_COLUMNS = ("S1", "S1_conf", "S1_lo", "S1_hi", "S1_floor", "ST", "ST_conf", "ST_lo", "ST_hi", "ST_floor")
+#: The output "did the method refuse?": 1 where a task's estimate broke a sanity rule or the method said it cannot
+#: answer (status ``failed``), 0 where it answered, so a study can ask which inputs make a method fail. Its blocks
+#: are whole where a metric's lose every block with a refusal in it (a Morris trajectory of 15 runs rarely has none).
+FAILED = "failed"
 #: Metrics analysed when the file names none (columns of the result rows).
 DEFAULT_METRICS = ("lamp_position_error_m", "sigma_rel_error", "ks_rel_error")
 
@@ -249,7 +253,8 @@ def sample(inputs: list[Input], design: Design) -> np.ndarray:
 
 
 def analyse(inputs: list[Input], design: Design, X: np.ndarray, Y: np.ndarray) -> tuple[list[dict[str, Any]], int]:
-    """SALib's indices of the outputs ``Y`` of the sample ``X``, after dropping blocks with a non-finite output.
+    """The indices of the outputs ``Y`` of the sample ``X``: Sobol' after dropping blocks with a non-finite output,
+    Morris step by step (:mod:`nearlight.evaluation.gsa.morris`: a step with a non-finite end is left out).
 
     Parameters
     ----------
@@ -269,13 +274,14 @@ def analyse(inputs: list[Input], design: Design, X: np.ndarray, Y: np.ndarray) -
         and its half-width ``_conf``, and the chance floor ``_floor``, the same
         for every input); for ``morris``, ``mu``, ``mu_star``,
         ``mu_star_conf``, ``sigma`` (in the output's units per unit of the
-        input's range: SALib's elementary effects on the unit hypercube).
-        All NaN when fewer than 2 blocks are left (or, Sobol', the outputs do not vary).
+        input's range: SALib's elementary effects on the unit hypercube) and
+        ``steps`` (the input's steps with both ends answered; NaN indices
+        below 2). Sobol': all NaN when fewer than 2 blocks are left or the
+        outputs do not vary.
     blocks : int
-        Blocks analysed (of ``design.n``).
+        Blocks with every output finite (of ``design.n``): Sobol' analyses these only.
     """
-    from SALib.analyze import morris
-
+    from .morris import morris_indices
     from .sobol import sobol_indices
 
     k = len(inputs)
@@ -291,12 +297,9 @@ def analyse(inputs: list[Input], design: Design, X: np.ndarray, Y: np.ndarray) -
                             seed=design.seed)  # fmt: skip
         res = {key: np.broadcast_to(res[key], (k,)) for key in keys}
     else:
-        keys = ("mu", "mu_star", "mu_star_conf", "sigma")
-        if keep.sum() < 2:
-            return [{"input": n, **dict.fromkeys(keys, math.nan)} for n in names], int(keep.sum())
-        rows = np.repeat(keep, size)
-        res = morris.analyze(problem(inputs), X[rows], Y[rows], num_resamples=design.resamples,
-                             conf_level=design.conf_level, num_levels=design.levels, seed=design.seed)  # fmt: skip
+        keys = ("mu", "mu_star", "mu_star_conf", "sigma", "steps")
+        res = morris_indices(X, Y, design.levels, resamples=design.resamples, conf_level=design.conf_level,
+                             seed=design.seed)  # fmt: skip
     return [{"input": n, **{key: float(res[key][j]) for key in keys}} for j, n in enumerate(names)], int(keep.sum())
 
 
@@ -419,8 +422,9 @@ def load_study(source: str | Path, *, settings: Mapping[str, Any] = (), design: 
     inputs = _inputs(path, spec)
 
     for name in spec.metrics:
-        if name not in (*METRICS, *ESTIMATE_COLUMNS):
-            raise UserError(f"{path}: metrics: unknown metric {name!r} (expected one of {', '.join(METRICS)})")
+        if name not in (*METRICS, *ESTIMATE_COLUMNS, FAILED):
+            raise UserError(f"{path}: metrics: unknown metric {name!r} (expected one of {', '.join(METRICS)}, "
+                            f"or {FAILED})")  # fmt: skip
     if design is not None and design not in spec.designs:
         raise UserError(f"--design {design}: not a design of {path} (it has {', '.join(spec.designs)})")
 
@@ -501,17 +505,21 @@ def outputs(run: DesignRun, results: Any, metric: str, method: str) -> np.ndarra
     results : pandas.DataFrame
         The sweep's rows (``results.parquet``).
     metric : str
-        A numeric column of the rows.
+        A numeric column of the rows, or :data:`FAILED`.
     method : str
         A method label.
 
     Returns
     -------
     ndarray, shape (n_samples,)
-        NaN where a task is missing, failed, or its metric is not finite.
+        NaN where a task is missing, failed, or its metric is not finite (:data:`FAILED`: 1 or 0 where the
+        method answered or refused, NaN where the task crashed).
     """
-    ok = results[results["status"] == "ok"].set_index("task_id")[metric].astype(float)
-    values = ok.to_dict()
+    if metric == FAILED:  # a crash (status error) is no answer either way: NaN
+        answered = results[results["status"].isin(["ok", "failed"])].set_index("task_id")["status"]
+        values = (answered == "failed").astype(float).to_dict()
+    else:
+        values = results[results["status"] == "ok"].set_index("task_id")[metric].astype(float).to_dict()
     out = np.full(len(run.sample_tasks), math.nan)
     for i, ids in enumerate(run.sample_tasks):
         got = [values.get(t, math.nan) for t in ids.get(method, [])]

@@ -341,3 +341,58 @@ def test_a_samples_output_is_the_mean_over_its_seeds_and_nan_when_any_failed():
     rows = pd.DataFrame({"task_id": list("abcde"), "status": ["ok", "ok", "ok", "ok", "error"],
                          "lamp_position_error_m": [1.0, 3.0, 5.0, 7.0, math.nan]})  # fmt: skip
     np.testing.assert_array_equal(outputs(run, rows, "lamp_position_error_m", "m"), [2.0, 5.0, np.nan])
+
+
+def test_the_failed_output_is_one_where_the_method_refused_zero_where_it_answered_and_nan_where_it_crashed():
+    """``metrics: [failed]`` asks which inputs make a method refuse: a refusal is data (1), an answer 0, a crash
+    (status error) no answer either way (NaN); a metric of the same rows is NaN wherever the method refused."""
+    from types import SimpleNamespace
+
+    from nearlight.evaluation.gsa.study import FAILED, outputs
+
+    results = pd.DataFrame({"task_id": ["a", "b", "c", "d"], "status": ["ok", "failed", "error", "ok"],
+                            "lamp_position_error_m": [0.1, math.nan, math.nan, 0.3]})  # fmt: skip
+    run = SimpleNamespace(sample_tasks=[{"m": ["a"]}, {"m": ["b"]}, {"m": ["c"]}, {"m": ["d"]}, {}])
+    np.testing.assert_array_equal(outputs(run, results, FAILED, "m"), [0.0, 1.0, math.nan, 0.0, math.nan])
+    np.testing.assert_array_equal(outputs(run, results, "lamp_position_error_m", "m"), [0.1, math.nan, math.nan, 0.3,
+                                                                                        math.nan])
+
+
+def test_morris_effects_by_level_of_a_categorical_input_are_the_slopes_there():
+    """y = 4·u on the board, 1·u on the sphere, plus 2·v everywhere: u's mu* is exactly 4 at object=board and 1 at
+    object=sphere (every elementary effect of a linear term is its slope), v's 2 at both, and the categorical
+    input itself has no row entry of its own level."""
+    from nearlight.evaluation.gsa.report import effects_by_level
+
+    inputs = [Input("u", "uniform", (0.0, 1.0)), Input("object", "labels", (0.0, 2.0), [("board", 0), ("sphere", 1)]),
+              Input("v", "uniform", (0.0, 1.0))]  # fmt: skip
+    design = Design("morris", "morris", n=40, seed=5, levels=4)
+    X = sample(inputs, design)
+    board = np.floor(X[:, 1]) == 0
+    Y = np.where(board, 4.0, 1.0) * X[:, 0] + 2.0 * X[:, 2]
+    by = effects_by_level(inputs, design.levels, X, Y).set_index("input")
+    assert by.loc["u", "object=board"] == pytest.approx(4.0) and by.loc["u", "object=sphere"] == pytest.approx(1.0)
+    assert by.loc["v"].tolist() == pytest.approx([2.0, 2.0])
+    assert by.loc["object"].isna().all()
+
+
+def test_morris_step_by_step_is_salibs_morris_when_every_run_answered_and_keeps_the_steps_that_did():
+    """With every output finite, mu, mu* and sigma are SALib's own (SALib.analyze.morris on the same sample); with
+    refusals, only the steps with a refused end are left out: a trajectory with one refusal still gives its other
+    steps (SALib would drop it whole)."""
+    from SALib.analyze import morris as salib_morris
+
+    inputs = ISHIGAMI_INPUTS
+    design = Design("morris", "morris", n=30, seed=4, levels=4)
+    X = sample(inputs, design)
+    Y = ishigami(X)
+    rows, _ = analyse(inputs, design, X, Y)
+    ref = salib_morris.analyze({"num_vars": 3, "names": ["x1", "x2", "x3"], "bounds": [[-PI, PI]] * 3}, X, Y,
+                               num_levels=4, seed=4)  # fmt: skip
+    for j, r in enumerate(rows):
+        assert (r["mu"], r["mu_star"], r["sigma"]) == pytest.approx((ref["mu"][j], ref["mu_star"][j], ref["sigma"][j]),
+                                                                    rel=1e-12)  # fmt: skip
+        assert r["steps"] == 30
+    Y[[1, 4 * 7 + 2]] = np.nan  # row 1: trajectory 0's steps 0 and 1; row 30: trajectory 7's steps 1 and 2
+    rows, blocks = analyse(inputs, design, X, Y)
+    assert blocks == 28 and sum(r["steps"] for r in rows) == 3 * 30 - 4
