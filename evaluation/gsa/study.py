@@ -63,9 +63,10 @@ CAMERA_INPUTS = ("viewing_angle", "camera_distance")
 DISTRIBUTIONS = {"uniform": "unif", "loguniform": "logunif", "normal": "norm"}
 #: The columns of a Sobol' design's indices (:func:`analyse`).
 SOBOL_COLUMNS = ("S1", "S1_conf", "S1_lo", "S1_hi", "S1_floor", "ST", "ST_conf", "ST_lo", "ST_hi", "ST_floor")
-#: The output "did the method refuse?": 1 where a task's estimate broke a sanity rule or the method said it cannot
-#: answer (status ``failed``), 0 where it answered, so a study can ask which inputs make a method fail. Its blocks
-#: are whole where a metric's lose every block with a refusal in it (a Morris trajectory of 15 runs rarely has none).
+#: The output "did the method give no answer?": 1 where a task's row is not ``ok`` (the estimate broke a sanity rule,
+#: status ``failed``, or the method stopped with its one-line reason, status ``error``: "E_p(t) has no minimum before
+#: t_max", "2 separate highlights"), 0 where it answered; the failures the sweep reports and ``compare`` count. A
+#: study can ask which inputs make a method fail; the metrics' Morris steps lose both ends of every failure.
 FAILED = "failed"
 #: Metrics analysed when the file names none (columns of the result rows).
 DEFAULT_METRICS = ("lamp_position_error_m", "sigma_rel_error", "ks_rel_error")
@@ -512,12 +513,11 @@ def outputs(run: DesignRun, results: Any, metric: str, method: str) -> np.ndarra
     Returns
     -------
     ndarray, shape (n_samples,)
-        NaN where a task is missing, failed, or its metric is not finite (:data:`FAILED`: 1 or 0 where the
-        method answered or refused, NaN where the task crashed).
+        NaN where a task is missing, failed, or its metric is not finite (:data:`FAILED`: 0 where the method
+        answered, 1 where it did not, NaN where the task is missing).
     """
-    if metric == FAILED:  # a crash (status error) is no answer either way: NaN
-        answered = results[results["status"].isin(["ok", "failed"])].set_index("task_id")["status"]
-        values = (answered == "failed").astype(float).to_dict()
+    if metric == FAILED:
+        values = (results.set_index("task_id")["status"] != "ok").astype(float).to_dict()
     else:
         values = results[results["status"] == "ok"].set_index("task_id")[metric].astype(float).to_dict()
     out = np.full(len(run.sample_tasks), math.nan)

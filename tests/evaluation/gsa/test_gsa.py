@@ -343,9 +343,10 @@ def test_a_samples_output_is_the_mean_over_its_seeds_and_nan_when_any_failed():
     np.testing.assert_array_equal(outputs(run, rows, "lamp_position_error_m", "m"), [2.0, 5.0, np.nan])
 
 
-def test_the_failed_output_is_one_where_the_method_refused_zero_where_it_answered_and_nan_where_it_crashed():
-    """``metrics: [failed]`` asks which inputs make a method refuse: a refusal is data (1), an answer 0, a crash
-    (status error) no answer either way (NaN); a metric of the same rows is NaN wherever the method refused."""
+def test_the_failed_output_is_one_where_the_method_gave_no_answer_and_zero_where_it_answered():
+    """``metrics: [failed]`` asks which inputs make a method fail: a row that is not ``ok`` (a sanity rule's refusal,
+    or the method's one-line reason, status error) is 1, as the sweep reports and ``compare`` count failures; an
+    answer 0; a missing task NaN. A metric of the same rows is NaN wherever the method gave no answer."""
     from types import SimpleNamespace
 
     from nearlight.evaluation.gsa.study import FAILED, outputs
@@ -353,7 +354,7 @@ def test_the_failed_output_is_one_where_the_method_refused_zero_where_it_answere
     results = pd.DataFrame({"task_id": ["a", "b", "c", "d"], "status": ["ok", "failed", "error", "ok"],
                             "lamp_position_error_m": [0.1, math.nan, math.nan, 0.3]})  # fmt: skip
     run = SimpleNamespace(sample_tasks=[{"m": ["a"]}, {"m": ["b"]}, {"m": ["c"]}, {"m": ["d"]}, {}])
-    np.testing.assert_array_equal(outputs(run, results, FAILED, "m"), [0.0, 1.0, math.nan, 0.0, math.nan])
+    np.testing.assert_array_equal(outputs(run, results, FAILED, "m"), [0.0, 1.0, 1.0, 0.0, math.nan])
     np.testing.assert_array_equal(outputs(run, results, "lamp_position_error_m", "m"), [0.1, math.nan, math.nan, 0.3,
                                                                                         math.nan])
 
