@@ -59,9 +59,10 @@ def dummy_indices(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     N = A.shape[0]
     f0 = (A * B).sum(axis=0) / N
     V = (A * A + B * B).sum(axis=0) / (2 * N - 1) - f0
-    S1 = ((A * B).sum(axis=0) / (N - 1) - f0) / V
-    ST = 1 - ((B * B).sum(axis=0) / (N - 1) - f0) / V
-    return S1, ST
+    with np.errstate(divide="ignore", invalid="ignore"):  # V = 0 (a resample of constant outputs): NaN, no floor
+        S1 = ((A * B).sum(axis=0) / (N - 1) - f0) / V
+        ST = 1 - ((B * B).sum(axis=0) / (N - 1) - f0) / V
+    return np.where(V > 0, S1, np.nan), np.where(V > 0, ST, np.nan)
 
 
 def sobol_indices(Y: np.ndarray, k: int, *, resamples: int = 1000, conf_level: float = 0.95,
@@ -71,7 +72,8 @@ def sobol_indices(Y: np.ndarray, k: int, *, resamples: int = 1000, conf_level: f
     Parameters
     ----------
     Y : ndarray, shape (N·(k + 2),)
-        The outputs of a Saltelli sample in SALib's order, all finite and not all equal.
+        The outputs of a Saltelli sample in SALib's order, all finite and not all equal (every index NaN when
+        those of A and B are all equal: no variance to share out).
     k : int
         Inputs.
     resamples : int
@@ -92,6 +94,10 @@ def sobol_indices(Y: np.ndarray, k: int, *, resamples: int = 1000, conf_level: f
 
     A, B, AB = split(Y, k)
     N = A.shape[0]
+    if np.ptp(np.r_[A, B]) == 0:  # A and B show no variance (outputs that vary only in some A_B^i): undefined
+        nan = np.full(k, np.nan)
+        return {key: nan for kind in KINDS for key in (kind, f"{kind}_lo", f"{kind}_hi", f"{kind}_conf")} | {
+            f"{kind}_floor": np.asarray(np.nan) for kind in KINDS}
     r = np.random.default_rng(seed).integers(N, size=(N, resamples))
     q = [(1 - conf_level) / 2, (1 + conf_level) / 2]
     out: dict[str, np.ndarray] = {}
@@ -101,7 +107,7 @@ def sobol_indices(Y: np.ndarray, k: int, *, resamples: int = 1000, conf_level: f
         lo, hi = np.quantile(boot, q, axis=1)
         out |= {kind: point, f"{kind}_lo": lo, f"{kind}_hi": hi, f"{kind}_conf": (hi - lo) / 2}
     for kind, boot in zip(KINDS, dummy_indices(A[r], B[r])):
-        out[f"{kind}_floor"] = np.asarray(np.quantile(boot, q[1]))
+        out[f"{kind}_floor"] = np.asarray(np.nanquantile(boot, q[1]) if np.isfinite(boot).any() else np.nan)
     return out
 
 

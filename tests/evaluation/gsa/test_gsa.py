@@ -397,3 +397,14 @@ def test_morris_step_by_step_is_salibs_morris_when_every_run_answered_and_keeps_
     Y[[1, 4 * 7 + 2]] = np.nan  # row 1: trajectory 0's steps 0 and 1; row 30: trajectory 7's steps 1 and 2
     rows, blocks = analyse(inputs, design, X, Y)
     assert blocks == 28 and sum(r["steps"] for r in rows) == 3 * 30 - 4
+
+
+def test_outputs_that_vary_only_off_a_and_b_give_no_index_and_no_warning():
+    """A rare failure (the ``failed`` output of a method that almost always answers) may fall only in rows A_B^i:
+    A and B then show no variance, every index and the floor are undefined (NaN), quietly (filterwarnings=error)."""
+    design = Design("sobol", "sobol", n=64, seed=7)
+    X = sample(ISHIGAMI_INPUTS, design)
+    Y = np.zeros(len(X))
+    Y[[1, 12]] = 1.0  # rows A_B^1 of blocks 0 and 2
+    rows, blocks = analyse(ISHIGAMI_INPUTS, design, X, Y)
+    assert blocks == 64 and all(math.isnan(r["ST"]) and math.isnan(r["ST_floor"]) for r in rows)
