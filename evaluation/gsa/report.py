@@ -158,11 +158,12 @@ def plot_convergence(conv: pd.DataFrame, metric: str, method: str, path: Path) -
     floor = g.groupby("n")["ST_floor"].first().reindex(ns)
     ax.fill_between(ns, 0, floor.to_numpy(), color="0.85", label="floor (chance)")
     inputs = list(dict.fromkeys(g["input"]))
+    colours = plt.get_cmap("tab20").colors  # one colour per input (the default cycle repeats after 10)
     for j, name in enumerate(inputs):
         m = g[g["input"] == name].set_index("n").reindex(ns)
-        shift = 1 + 0.04 * (j - (len(inputs) - 1) / 2)  # spread the markers of one N apart
+        shift = 2 ** (0.3 * (j - (len(inputs) - 1) / 2) / max(len(inputs) - 1, 1))  # spread one N's markers
         ax.errorbar(np.asarray(ns) * shift, m["ST"], yerr=[m["ST"] - m["ST_lo"], m["ST_hi"] - m["ST"]], marker="o",
-                    ms=3, capsize=2, lw=1, label=name)  # fmt: skip
+                    ms=3, capsize=2, lw=1, label=name, color=colours[(2 * j) % 20 + (2 * j) // 20 % 2])  # fmt: skip
     ax.set_xscale("log", base=2)
     ax.set_xticks(ns, [str(n) for n in ns])
     ax.set_xlabel("base samples N")
