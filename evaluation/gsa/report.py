@@ -242,6 +242,10 @@ def plot_indices(indices: pd.DataFrame, metric: str, design: str, path: Path) ->
     return save_png(fig, path, dpi=110)
 
 
+#: Panels per row of a scatter figure (a study of 14 inputs in one row is 39 inches wide).
+SCATTER_COLUMNS = 5
+
+
 def plot_scatter(table: pd.DataFrame, inputs: list[Input], metric: str, method: str, path: Path) -> Path:
     """``metric`` against each input for one method (one panel per input; categorical inputs by label,
     log-uniform ones on a log axis)."""
@@ -249,8 +253,13 @@ def plot_scatter(table: pd.DataFrame, inputs: list[Input], metric: str, method: 
     import matplotlib.ticker
 
     t = table[table["method"] == method]
-    fig, axs = plt.subplots(1, len(inputs), figsize=(2.8 * len(inputs), 2.8), constrained_layout=True, sharey=True)
-    for ax, inp in zip(np.atleast_1d(axs), inputs):
+    cols = min(len(inputs), SCATTER_COLUMNS)
+    rows = -(-len(inputs) // cols)
+    fig, axs = plt.subplots(rows, cols, figsize=(2.8 * cols, 2.6 * rows), constrained_layout=True, sharey=True,
+                            squeeze=False)  # fmt: skip
+    for ax in axs.flat[len(inputs):]:
+        ax.set_visible(False)
+    for ax, inp in zip(axs.flat, inputs):
         name = inp.name
         xs = t[name]
         if not pd.api.types.is_numeric_dtype(xs):
@@ -262,7 +271,8 @@ def plot_scatter(table: pd.DataFrame, inputs: list[Input], metric: str, method: 
             ax.set_xscale("log")
             ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_xlabel(name)
-    np.atleast_1d(axs)[0].set_ylabel(metric)
+    for row in axs:
+        row[0].set_ylabel(metric)
     fig.suptitle(f"{method}: {metric} against each input")
     return save_png(fig, path, dpi=100)
 
