@@ -7,8 +7,9 @@ were analysed). Files:
 - ``indices.csv``: per method × metric × input, the indices with their
   bootstrap intervals (``sobol``: :data:`~nearlight.evaluation.gsa.study.SOBOL_COLUMNS`,
   percentile intervals and the chance floor, :mod:`nearlight.evaluation.gsa.sobol`;
-  ``morris``: SALib's ``mu``, ``mu_star``, ``mu_star_conf``, ``sigma``), and
-  ``blocks`` (analysed) of ``n_blocks``;
+  ``morris``: ``mu``, ``mu_star``, ``mu_star_conf``, ``sigma`` and ``steps``,
+  step by step, :mod:`nearlight.evaluation.gsa.morris`), and ``blocks``
+  (Sobol': analysed; Morris: trajectories with every run answered) of ``n_blocks``;
 - ``convergence.csv`` (Sobol', N ≥ 8): the same at N/4, N/2 and N, and
   ``convergence_<method>.png``: each input's ST against N;
 - ``outputs.csv``: per sample and method, the inputs' values and every
@@ -45,13 +46,14 @@ from ..engine.store import read_results
 FOLDER = "gsa"
 
 
-def index_table(study: Study, run: DesignRun, results: pd.DataFrame) -> pd.DataFrame:
-    """SALib's indices of every method × metric of ``run`` (long form, see the module docstring)."""
+def index_table(study: Study, run: DesignRun, table: pd.DataFrame) -> pd.DataFrame:
+    """The indices of every method × metric of ``run`` (long form, see the module docstring), from the outputs
+    of :func:`output_table`."""
     rows = []
     n_blocks = run.design.n
     for method in run.sweep.methods:
         for metric in study.metrics:
-            Y = outputs(run, results, metric, method.label)
+            Y = sample_outputs(table, method.label, metric)
             indices, blocks = analyse(study.inputs, run.design, run.samples, Y)
             rows += [{"method": method.label, "metric": metric, **r, "blocks": blocks, "n_blocks": n_blocks}
                      for r in indices]  # fmt: skip
@@ -68,6 +70,12 @@ def output_table(study: Study, run: DesignRun, results: pd.DataFrame) -> pd.Data
             df[metric] = outputs(run, results, metric, method.label)
         frames.append(df)
     return pd.concat(frames, ignore_index=True)
+
+
+def sample_outputs(table: pd.DataFrame, method: str, metric: str) -> np.ndarray:
+    """``metric`` of every sample of ``method``, in sample order, from :func:`output_table` (where each is read
+    from the rows once)."""
+    return table.loc[table["method"] == method, metric].to_numpy(dtype=float)
 
 
 def _key(design: str) -> str:
@@ -88,7 +96,7 @@ def headline(indices: pd.DataFrame, design: str) -> pd.DataFrame:
             ranked = ", ".join(f"{r.input} {getattr(r, key):.2g}" for r in g.itertuples())
             rows.append({"method": method, "metric": metric, f"inputs by {key}": ranked or "n/a (no block analysed)"})
             continue
-        above = g[[distinguishable(r.ST_lo, r.ST_floor) for r in g.itertuples()]]
+        above = _above_floor(g)
         below = g.drop(above.index)
         ranked = ", ".join(f"{r.input} {r.ST:.2g} [{r.ST_lo:.2g}, {r.ST_hi:.2g}]" for r in above.itertuples())
         rows.append({"method": method, "metric": metric,
@@ -127,10 +135,11 @@ def _cells(indices: pd.DataFrame, metric: str, design: str) -> pd.DataFrame:
 CONVERGENCE = (4, 2, 1)
 
 
-def convergence_table(study: Study, run: DesignRun, results: pd.DataFrame) -> pd.DataFrame:
+def convergence_table(study: Study, run: DesignRun, table: pd.DataFrame, indices: pd.DataFrame) -> pd.DataFrame:
     """Every Sobol' index of every method × metric analysed on the first N/4, N/2 and N base samples (a scrambled
     Sobol' sequence's first 2^m points are a balanced design of their own), with its interval and floor: column
-    ``n``, then :func:`index_table`'s. Empty for Morris or fewer than 8 base samples."""
+    ``n``, then :func:`index_table`'s (``indices``, the rows at N). Empty for Morris or fewer than 8 base
+    samples."""
     design = run.design
     if design.method != "sobol" or design.n < 8:
         return pd.DataFrame()
@@ -138,12 +147,15 @@ def convergence_table(study: Study, run: DesignRun, results: pd.DataFrame) -> pd
     frames = []
     for part in CONVERGENCE:
         n = design.n // part
+        if part == 1:
+            frames.append(indices.drop(columns="n_blocks").assign(n=n)[["n", *indices.columns.drop("n_blocks")]])
+            continue
         rows = []
         for method in run.sweep.methods:
             for metric in study.metrics:
-                Y = outputs(run, results, metric, method.label)[: n * size]
-                indices, blocks = analyse(study.inputs, design, run.samples[: n * size], Y)
-                rows += [{"n": n, "method": method.label, "metric": metric, **r, "blocks": blocks} for r in indices]
+                Y = sample_outputs(table, method.label, metric)[: n * size]
+                got, blocks = analyse(study.inputs, design, run.samples[: n * size], Y)
+                rows += [{"n": n, "method": method.label, "metric": metric, **r, "blocks": blocks} for r in got]
         frames.append(pd.DataFrame(rows))
     return pd.concat(frames, ignore_index=True)
 
@@ -158,12 +170,13 @@ def plot_convergence(conv: pd.DataFrame, metric: str, method: str, path: Path) -
     floor = g.groupby("n")["ST_floor"].first().reindex(ns)
     ax.fill_between(ns, 0, floor.to_numpy(), color="0.85", label="floor (chance)")
     inputs = list(dict.fromkeys(g["input"]))
-    colours = plt.get_cmap("tab20").colors  # one colour per input (the default cycle repeats after 10)
+    tab20 = plt.get_cmap("tab20").colors  # one colour per input (the default cycle repeats after 10): tab20's
+    colours = tab20[0::2] + tab20[1::2]  # strong shades first, then their light pairs
     for j, name in enumerate(inputs):
         m = g[g["input"] == name].set_index("n").reindex(ns)
         shift = 2 ** (0.3 * (j - (len(inputs) - 1) / 2) / max(len(inputs) - 1, 1))  # spread one N's markers
         ax.errorbar(np.asarray(ns) * shift, m["ST"], yerr=[m["ST"] - m["ST_lo"], m["ST_hi"] - m["ST"]], marker="o",
-                    ms=3, capsize=2, lw=1, label=name, color=colours[(2 * j) % 20 + (2 * j) // 20 % 2])  # fmt: skip
+                    ms=3, capsize=2, lw=1, label=name, color=colours[j % 20])  # fmt: skip
     ax.set_xscale("log", base=2)
     ax.set_xticks(ns, [str(n) for n in ns])
     ax.set_xlabel("base samples N")
@@ -315,9 +328,9 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
     methods = [m.label for m in run.sweep.methods]
     make_folder(folder, what="report folder")
     design = run.design.method
-    indices = index_table(study, run, results)
     table = output_table(study, run, results)
-    conv = convergence_table(study, run, results)
+    indices = index_table(study, run, table)
+    conv = convergence_table(study, run, table, indices)
     write_text(folder / "indices.csv", indices.to_csv(index=False), what="the report")
     write_text(folder / "outputs.csv", table.to_csv(index=False), what="the report")
     if not conv.empty:
@@ -357,7 +370,7 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
                f"Morris mu* of {metrics[0]} over the steps taken at each level of each categorical input "
                "(steps with both ends answered):", ""]  # fmt: skip
         for method in methods:
-            Y = outputs(run, results, metrics[0], method)
+            Y = sample_outputs(table, method, metrics[0])
             by = effects_by_level(study.inputs, run.design.levels, run.samples, Y)
             md += [f"**{method}**", "", frame_table(by.round(4)), ""]
     md += ["## Where each influential input matters", "",
@@ -378,12 +391,17 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
     return folder
 
 
+def _above_floor(indices: pd.DataFrame) -> pd.DataFrame:
+    """The rows of Sobol' ``indices`` whose ``ST`` interval stands above the chance floor."""
+    return indices[[distinguishable(r.ST_lo, r.ST_floor) for r in indices.itertuples()]]
+
+
 def _influential(indices: pd.DataFrame, study: Study, method: str, metric: str, design: str) -> list[Input]:
     """The inputs a reader should act on, largest first: Sobol', ``ST`` above the floor; Morris, ``mu*`` at least
     a tenth of the largest (screening ranks; a tenth keeps the inputs whose effect is of the leaders' order)."""
     g = indices[(indices["method"] == method) & (indices["metric"] == metric)].dropna(subset=[_key(design)])
     if design == "sobol":
-        g = g[[distinguishable(r.ST_lo, r.ST_floor) for r in g.itertuples()]]
+        g = _above_floor(g)
     elif len(g):
         g = g[g["mu_star"] >= 0.1 * g["mu_star"].max()]
     by_name = {i.name: i for i in study.inputs}
