@@ -22,7 +22,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "gsa",
         help="global sensitivity analysis: sample a GSA file's inputs, run them as a sweep, rank what matters",
         description="Sample each design of a GSA file (Saltelli for Sobol' indices, or Morris screening; SALib), "
-        "run every sampled configuration on the sweep engine into DIR/<design>/ (resumed when it exists) and "
+        "run every sampled configuration on the sweep engine into DIR/<design>/ (a Sobol' design's replicates into "
+        "DIR/<design>/seed-<s>/; resumed when it exists) and "
         "write DIR/<design>/gsa/: the indices with bootstrap intervals per method and metric, bar charts and "
         "scatter plots.",
     )
@@ -50,7 +51,8 @@ def _gsa(args: argparse.Namespace) -> int:
     for run in study.runs.values():
         if run.sweep.renderer.extra is not None:
             require_extra(run.sweep.renderer.extra)
-        check_resumable(Path(args.out) / run.design.name, run.sweep)  # every design before anything runs
+        for rep in run.replicates:  # every design before anything runs
+            check_resumable(Path(args.out) / run.design.name / rep.folder, rep.sweep)
         check_report_out(study, run, Path(args.out) / run.design.name)  # and where its report goes
     cache = results_cache(args)
     status = 0
@@ -58,19 +60,23 @@ def _gsa(args: argparse.Namespace) -> int:
         out = Path(args.out) / name
         command = " ".join(["nearlight gsa", args.gsa, "--out", args.out, "--design", name,
                             *(f"--set {item}" for item in args.set)])  # fmt: skip
-        sweep = run.sweep
-        print(
-            f"gsa {study.name} {name}: {run.design.method} design, n = {run.design.n}: {len(run.samples)} samples, "
-            f"{len(sweep.tasks)} tasks, {len(sweep.render_keys)} physical configurations, on {executor_text(args)} "
-            f"-> {out}",
-            file=sys.stderr,
-        )
-        s = on_executor(args, run_sweep, sweep, out, progress=not args.quiet, cache_dir=cache, command=command)
-        print(
-            f"gsa {study.name} {name}: {s.line()}; " + ("complete" if s.complete else "INCOMPLETE"),
-            file=sys.stderr,
-        )
-        if s.complete:
+        complete = True
+        for rep in run.replicates:
+            sweep, folder = rep.sweep, out / rep.folder
+            which = "" if rep.folder == "." else f" replicate seed {rep.seed} ({rep.folder}, {len(run.replicates)} in all)"
+            print(
+                f"gsa {study.name} {name}{which}: {run.design.method} design, n = {run.design.n}: "
+                f"{len(run.samples) // len(run.replicates)} samples, {len(sweep.tasks)} tasks, "
+                f"{len(sweep.render_keys)} physical configurations, on {executor_text(args)} -> {folder}",
+                file=sys.stderr,
+            )
+            s = on_executor(args, run_sweep, sweep, folder, progress=not args.quiet, cache_dir=cache, command=command)
+            print(
+                f"gsa {study.name} {name}{which}: {s.line()}; " + ("complete" if s.complete else "INCOMPLETE"),
+                file=sys.stderr,
+            )
+            complete &= s.complete
+        if complete:
             print(write_gsa_report(study, run, out, command=command))  # the result: each design's report folder
         else:
             print(out)

@@ -10,8 +10,11 @@ were analysed). Files:
   ``morris``: ``mu``, ``mu_star``, ``mu_star_conf``, ``sigma`` and ``steps``,
   step by step, :mod:`nearlight.evaluation.gsa.morris`), and ``blocks``
   (Sobol': analysed; Morris: trajectories with every run answered) of ``n_blocks``;
-- ``convergence.csv`` (Sobol', N ≥ 8): the same at N/4, N/2 and N, and
-  ``convergence_<method>.png``: each input's ST against N;
+- ``convergence.csv`` (Sobol', N ≥ 8): the same at N/4, N/2 and N (column
+  ``seeds``: the replicates analysed) and, for a design of several replicates,
+  each replicate alone; ``convergence_<method>.png``: each input's ST against
+  N; the report says whether the inputs whose intervals do not overlap keep
+  their order in each of these analyses;
 - ``outputs.csv``: per sample and method, the inputs' values and every
   analysed metric (the mean over the sample's seeds), in sample order;
 - ``gsa.md``: the headline (which input matters most, per method and
@@ -50,7 +53,7 @@ def index_table(study: Study, run: DesignRun, table: pd.DataFrame) -> pd.DataFra
     """The indices of every method × metric of ``run`` (long form, see the module docstring), from the outputs
     of :func:`output_table`."""
     rows = []
-    n_blocks = run.design.n
+    n_blocks = run.design.blocks
     for method in run.sweep.methods:
         for metric in study.metrics:
             Y = sample_outputs(table, method.label, metric)
@@ -136,28 +139,66 @@ CONVERGENCE = (4, 2, 1)
 
 
 def convergence_table(study: Study, run: DesignRun, table: pd.DataFrame, indices: pd.DataFrame) -> pd.DataFrame:
-    """Every Sobol' index of every method × metric analysed on the first N/4, N/2 and N base samples (a scrambled
-    Sobol' sequence's first 2^m points are a balanced design of their own), with its interval and floor: column
-    ``n``, then :func:`index_table`'s (``indices``, the rows at N). Empty for Morris or fewer than 8 base
-    samples."""
+    """Every Sobol' index of every method × metric analysed on the first N/4, N/2 and N base samples and, with
+    several replicates, on each replicate alone, with its interval and floor.
+
+    The first base samples of a scrambled Sobol' sequence (2^m of them) are a balanced design of their own, and
+    the replicates run one after the other, so N/2 of two replicates is the first. Columns ``n``, ``seeds`` (the
+    replicates' seeds, ``+``-joined), then :func:`index_table`'s (``indices``, the rows at N). Empty for Morris
+    or fewer than 8 base samples."""
     design = run.design
-    if design.method != "sobol" or design.n < 8:
+    if design.method != "sobol" or design.blocks < 8:
         return pd.DataFrame()
     size = design.block(len(study.inputs))
-    frames = []
-    for part in CONVERGENCE:
-        n = design.n // part
-        if part == 1:
-            frames.append(indices.drop(columns="n_blocks").assign(n=n)[["n", *indices.columns.drop("n_blocks")]])
-            continue
+    seeds = [rep.seed for rep in run.replicates]
+    subsets = [(design.blocks // part, slice(0, design.blocks // part)) for part in CONVERGENCE[:-1]]
+    if len(seeds) > 1:
+        subsets += [(design.n, slice(j * design.n, (j + 1) * design.n)) for j in range(len(seeds))]
+    frames = [indices.drop(columns="n_blocks").assign(n=design.blocks, seeds="+".join(map(str, seeds)))]
+    for n, blocks in subsets:
+        used = seeds[blocks.start // design.n: -(-blocks.stop // design.n)]
         rows = []
+        rows_of = slice(blocks.start * size, blocks.stop * size)
         for method in run.sweep.methods:
             for metric in study.metrics:
-                Y = sample_outputs(table, method.label, metric)[: n * size]
-                got, blocks = analyse(study.inputs, design, run.samples[: n * size], Y)
-                rows += [{"n": n, "method": method.label, "metric": metric, **r, "blocks": blocks} for r in got]
-        frames.append(pd.DataFrame(rows))
-    return pd.concat(frames, ignore_index=True)
+                Y = sample_outputs(table, method.label, metric)[rows_of]
+                got, kept = analyse(study.inputs, design, run.samples[rows_of], Y)
+                rows += [{"method": method.label, "metric": metric, **r, "blocks": kept} for r in got]
+        frames.append(pd.DataFrame(rows).assign(n=n, seeds="+".join(map(str, used))))
+    conv = pd.concat(frames, ignore_index=True)
+    conv = conv.drop_duplicates(subset=["n", "seeds", "method", "metric", "input"])  # one replicate's N/2 is a seed's
+    conv = conv.sort_values("n", kind="stable")
+    return conv[["n", "seeds", *indices.columns.drop("n_blocks")]].reset_index(drop=True)
+
+
+def order_changes(conv: pd.DataFrame, method: str, metric: str) -> tuple[list[str], dict[str, list[str]]]:
+    """Where the order of the total indices changes between the whole design and a part of it.
+
+    The pairs compared are the inputs above the floor (:func:`_above_floor`) whose ``ST`` intervals at N do not
+    overlap; an order is kept in a part (a ``(n, seeds)`` row group of :func:`convergence_table` other than the
+    whole) when each such pair has the same order there.
+
+    Returns
+    -------
+    pairs : list of str
+        The pairs compared, ``"a > b"`` (the order at N).
+    changes : dict
+        ``"<n> (seeds <s>)"`` -> the pairs that the part turns round; an empty list where the order is kept.
+    """
+    g = conv[(conv["method"] == method) & (conv["metric"] == metric)]
+    n_all = g["n"].max()
+    whole = g[(g["n"] == n_all)]
+    whole = whole[whole["seeds"] == whole["seeds"].iloc[0]] if len(whole) else whole
+    above = _above_floor(whole.dropna(subset=["ST"])).set_index("input")
+    pairs = [(a, b) for a in above.index for b in above.index
+             if above.at[a, "ST"] > above.at[b, "ST"] and above.at[a, "ST_lo"] > above.at[b, "ST_hi"]]  # fmt: skip
+    out = {}
+    for (n, seeds), part in g.groupby(["n", "seeds"], sort=False):
+        if n == n_all and seeds == whole["seeds"].iloc[0]:
+            continue
+        st = part.set_index("input")["ST"]
+        out[f"{n} (seeds {seeds})"] = [f"{a} > {b}" for a, b in pairs if not st[a] > st[b]]
+    return [f"{a} > {b}" for a, b in pairs], out
 
 
 def plot_convergence(conv: pd.DataFrame, metric: str, method: str, path: Path) -> Path:
@@ -165,6 +206,9 @@ def plot_convergence(conv: pd.DataFrame, metric: str, method: str, path: Path) -
     plt = pyplot()
 
     g = conv[(conv["metric"] == metric) & (conv["method"] == method)]
+    first = g["seeds"].str.split("+").str[0] == g.loc[g["n"].idxmax(), "seeds"].split("+")[0]
+    alone = g[~first]  # a later replicate alone (the first base samples start with the first): drawn hollow
+    g = g[first]
     fig, ax = plt.subplots(figsize=(6.4, 3.8), constrained_layout=True)
     ns = sorted(g["n"].unique())
     floor = g.groupby("n")["ST_floor"].first().reindex(ns)
@@ -177,11 +221,16 @@ def plot_convergence(conv: pd.DataFrame, metric: str, method: str, path: Path) -
         shift = 2 ** (0.3 * (j - (len(inputs) - 1) / 2) / max(len(inputs) - 1, 1))  # spread one N's markers
         ax.errorbar(np.asarray(ns) * shift, m["ST"], yerr=[m["ST"] - m["ST_lo"], m["ST_hi"] - m["ST"]], marker="o",
                     ms=3, capsize=2, lw=1, label=name, color=colours[j % 20])  # fmt: skip
+        for r in alone[alone["input"] == name].itertuples():  # another seed's replicate, beside the first
+            ax.errorbar([r.n * 1.12 * shift], [r.ST], yerr=[[r.ST - r.ST_lo], [r.ST_hi - r.ST]], marker="o", ms=3,
+                        mfc="white", capsize=2, lw=0, elinewidth=1, color=colours[j % 20])  # fmt: skip
     ax.set_xscale("log", base=2)
     ax.set_xticks(ns, [str(n) for n in ns])
     ax.set_xlabel("base samples N")
     ax.set_ylabel("total index ST")
-    ax.set_title(f"{method}, {metric}: ST at N/4, N/2, N")
+    seeds = sorted(alone["seeds"].unique())
+    ax.set_title(f"{method}, {metric}: ST at N/4, N/2, N" + (f"; hollow: seed {', '.join(seeds)} alone" if seeds else ""),
+                 fontsize=9)  # fmt: skip
     ax.legend(fontsize=6, ncol=2, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     return save_png(fig, path, dpi=110)
 
@@ -323,7 +372,8 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
     """
     results_dir = Path(results_dir)
     folder = check_report_out(study, run, results_dir)
-    results, complete = read_results(results_dir)
+    read = [read_results(results_dir / rep.folder) for rep in run.replicates]
+    results, complete = pd.concat([r[0] for r in read], ignore_index=True), all(r[1] for r in read)
     metrics = study.metrics
     methods = [m.label for m in run.sweep.methods]
     make_folder(folder, what="report folder")
@@ -348,8 +398,8 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
           f"{what}, at {int(100 * run.design.conf_level)} % confidence; "
           + ("`blocks`: Saltelli base samples analysed (a block with a failed or non-finite output is dropped whole)."
              if design == "sobol" else "`whole trajectories`: trajectories with every run answered."), "",
-          f"Design: `{design}`, n = {run.design.n}, seed {run.design.seed}, {len(run.samples)} samples, "
-          f"{len(run.sweep.tasks)} tasks" + ("" if complete else " (INCOMPLETE: rows missing)") + f"; "
+          f"Design: `{design}`, " + _design_text(run) + f", {len(run.samples)} samples, "
+          f"{run.tasks} tasks" + ("" if complete else " (INCOMPLETE: rows missing)") + f"; "
           f"{renderers_line(results)}.", "",
           "Inputs: " + "; ".join(f"`{i.name}` {_dist(i)}" for i in study.inputs) + ".", "",
           "## Which input matters most", "", frame_table(headline(indices, design)), ""]  # fmt: skip
@@ -358,13 +408,24 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
         plot_indices(indices, metric, design, folder / png)
         md += [f"## {metric}", "", frame_table(_cells(indices, metric, design)), "", f"![indices of {metric}]({png})", ""]
     if not conv.empty:
+        several = len(run.replicates) > 1
         md += ["## Convergence", "", f"Every index at N = {', '.join(str(n) for n in sorted(conv['n'].unique()))} "
-               "(the first base samples of the one Saltelli sample): `convergence.csv`; the total indices of "
-               f"{metrics[0]}:", ""]  # fmt: skip
+               "(the first base samples of the design" + (", and each replicate alone: the study under another "
+               "scrambling seed" if several else "") + "): `convergence.csv`. The inputs above the floor whose "
+               f"intervals at N = {run.design.blocks} do not overlap keep their order in each of these analyses "
+               "unless said below. The total indices of " + f"{metrics[0]}:", ""]  # fmt: skip
         for method in methods:
             png = f"convergence_{_safe(method)}.png"
             plot_convergence(conv, metrics[0], method, folder / png)
             md += [f"![{method} convergence]({png})", ""]
+            for metric in metrics:
+                pairs, changes = order_changes(conv, method, metric)
+                turned = [f"at N = {part}: {', '.join(t)}" for part, t in changes.items() if t]
+                md += [f"- {method}, {metric}: " + (
+                    "no two inputs above the floor with intervals apart, nothing to order" if not pairs else
+                    "; ".join(turned) + " turned round" if turned else
+                    f"the {len(pairs)} pairs apart keep their order in all {len(changes)}")]  # fmt: skip
+            md += [""]
     if design == "morris" and any(i.labels is not None for i in study.inputs):
         md += ["## Where an input's effect depends on a categorical input", "",
                f"Morris mu* of {metrics[0]} over the steps taken at each level of each categorical input "
@@ -393,7 +454,7 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
 
 def _above_floor(indices: pd.DataFrame) -> pd.DataFrame:
     """The rows of Sobol' ``indices`` whose ``ST`` interval stands above the chance floor."""
-    return indices[[distinguishable(r.ST_lo, r.ST_floor) for r in indices.itertuples()]]
+    return indices[np.array([distinguishable(r.ST_lo, r.ST_floor) for r in indices.itertuples()], dtype=bool)]
 
 
 def _influential(indices: pd.DataFrame, study: Study, method: str, metric: str, design: str) -> list[Input]:
@@ -406,6 +467,13 @@ def _influential(indices: pd.DataFrame, study: Study, method: str, metric: str, 
         g = g[g["mu_star"] >= 0.1 * g["mu_star"].max()]
     by_name = {i.name: i for i in study.inputs}
     return [by_name[name] for name in g.sort_values(_key(design), ascending=False)["input"]]
+
+
+def _design_text(run: DesignRun) -> str:
+    d = run.design
+    if len(run.replicates) == 1:
+        return f"n = {d.n}, seed {d.seed}"
+    return f"N = {d.blocks} ({len(run.replicates)} replicates of n = {d.n}, seeds {', '.join(map(str, d.seeds))})"
 
 
 def _dist(i: Input) -> str:

@@ -31,6 +31,14 @@ or whose metric is not finite drops its whole block (a Morris trajectory, or
 the ``k + 2`` rows of one Saltelli base sample): the estimators average over
 blocks, so the indices stay unbiased over fewer blocks (the report says how
 many were used).
+
+A Sobol' design may have ``replicates``: independently scrambled Saltelli
+samples of ``n`` base samples each, seeds ``seed``, ``seed + 1``, … (randomised
+quasi-Monte Carlo replicates, Owen 1997). Each runs as a sweep of its own in
+``seed-<s>/`` of the design's results folder, so adding a replicate to a
+finished study runs only the new one; the indices pool every replicate's blocks
+(N = replicates · n), and the report shows each replicate alone beside the
+pooled indices: the same study under another scrambling seed.
 """
 
 from __future__ import annotations
@@ -108,11 +116,14 @@ class _Design(BaseModel):
     resamples: int = Field(default=1000, ge=10)
     conf_level: float = Field(default=0.95, gt=0, lt=1)
     methods: list[str] | None = None
+    replicates: int = Field(default=1, ge=1)
 
     @model_validator(mode="after")
     def _power_of_two(self) -> "_Design":
         if self.method == "sobol" and self.n & (self.n - 1):
             raise ValueError(f"a sobol design needs n a power of 2 (Sobol' points keep their balance only then), got {self.n}")
+        if self.method == "morris" and self.replicates > 1:
+            raise ValueError("replicates: a morris design has none (more trajectories are a larger n)")
         return self
 
 
@@ -172,7 +183,8 @@ class Input:
 class Design:
     """A sampling design: SALib's ``method`` with base sample count ``n`` (Saltelli's N, or the number
     of Morris trajectories), its seed, Morris's grid ``levels``, the bootstrap ``resamples`` and
-    confidence level, and the methods it runs (None: all). Sobol' designs are first-order and total
+    confidence level, the methods it runs (None: all) and its Sobol' ``replicates`` (samples of ``n``
+    each, seeds ``seed``, ``seed + 1``, …; module docstring). Sobol' designs are first-order and total
     indices only: second order would cost ``n·(2k + 2)`` runs instead of ``n·(k + 2)``, and ``ST − S1``
     already shows how much of an input's share is interaction."""
 
@@ -184,12 +196,41 @@ class Design:
     resamples: int = 1000
     conf_level: float = 0.95
     methods: tuple[str, ...] | None = None
+    replicates: int = 1
+
+    @property
+    def seeds(self) -> tuple[int, ...]:
+        """The seed of each replicate."""
+        return tuple(range(self.seed, self.seed + self.replicates))
+
+    @property
+    def blocks(self) -> int:
+        """Independent blocks of the whole design: ``n`` per replicate."""
+        return self.n * self.replicates
 
     def block(self, k: int) -> int:
         """Rows of one independent block of the sample (a Morris trajectory, a Saltelli base sample)."""
         if self.method == "morris":
             return k + 1
         return k + 2
+
+
+@dataclasses.dataclass(frozen=True)
+class Replicate:
+    """One replicate of a design: its seed, its results folder and its sweep.
+
+    Attributes
+    ----------
+    seed : int
+    folder : str
+        Its results folder, relative to the design's (``"."``: a design of one replicate runs there).
+    sweep : Sweep
+        Its sampled configurations as one sweep (identical tasks once).
+    """
+
+    seed: int
+    folder: str
+    sweep: Sweep
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,17 +241,27 @@ class DesignRun:
     ----------
     design : Design
     samples : ndarray, shape (n_samples, k)
-        SALib's sample, in the inputs' units (categorical: ``[0, n)``).
-    sweep : Sweep
-        The sampled configurations as one sweep (identical tasks once).
+        SALib's sample, in the inputs' units (categorical: ``[0, n)``); the replicates' one after the other.
+    replicates : tuple of Replicate
+        One sweep per replicate (one for a Morris design).
     sample_tasks : list of dict
         Per sample, method label -> the ids of its tasks (one per seed that matters).
     """
 
     design: Design
     samples: np.ndarray
-    sweep: Sweep
+    replicates: tuple[Replicate, ...]
     sample_tasks: list[dict[str, list[str]]]
+
+    @property
+    def sweep(self) -> Sweep:
+        """The first replicate's sweep (every replicate's has the same methods and renderer)."""
+        return self.replicates[0].sweep
+
+    @property
+    def tasks(self) -> int:
+        """Tasks of every replicate."""
+        return sum(len(r.sweep.tasks) for r in self.replicates)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -234,8 +285,8 @@ def problem(inputs: list[Input]) -> dict[str, Any]:
     }
 
 
-def sample(inputs: list[Input], design: Design) -> np.ndarray:
-    """SALib's sample of ``design`` over ``inputs``.
+def sample(inputs: list[Input], design: Design, seed: int | None = None) -> np.ndarray:
+    """SALib's sample of ``design`` over ``inputs`` (with ``seed``, one replicate's; default the design's).
 
     Returns
     -------
@@ -248,9 +299,10 @@ def sample(inputs: list[Input], design: Design) -> np.ndarray:
     from SALib.sample import morris, sobol
 
     prob = problem(inputs)
+    seed = design.seed if seed is None else seed
     if design.method == "sobol":
-        return sobol.sample(prob, design.n, calc_second_order=False, seed=design.seed)
-    return morris.sample(prob, design.n, num_levels=design.levels, seed=design.seed)
+        return sobol.sample(prob, design.n, calc_second_order=False, seed=seed)
+    return morris.sample(prob, design.n, num_levels=design.levels, seed=seed)
 
 
 def analyse(inputs: list[Input], design: Design, X: np.ndarray, Y: np.ndarray) -> tuple[list[dict[str, Any]], int]:
@@ -280,7 +332,7 @@ def analyse(inputs: list[Input], design: Design, X: np.ndarray, Y: np.ndarray) -
         below 2). Sobol': all NaN when fewer than 2 blocks are left or the
         outputs do not vary.
     blocks : int
-        Blocks with every output finite (of ``design.n``): Sobol' analyses these only.
+        Blocks with every output finite (of ``len(X) / design.block(k)``): Sobol' analyses these only.
     """
     from .morris import morris_indices
     from .sobol import sobol_indices
@@ -445,9 +497,10 @@ def load_study(source: str | Path, *, settings: Mapping[str, Any] = (), design: 
                 raise UserError(f"{path}: designs.{name}.levels: {dz.levels} is not a multiple of the "
                                 f"{len(inp.labels)} labels of input {inp.name} (its labels would not be equally likely)")  # fmt: skip
         methods = _methods(path, name, spec.methods, dz.methods)
-        X = sample(inputs, dz)
-        runs[name] = _expand(path, {**base, "name": f"{spec.name}-{name}", "methods": methods}, spec, inputs, dz, X,
-                             base_scene)  # fmt: skip
+        parts = [_expand(path, {**base, "name": f"{spec.name}-{name}", "methods": methods}, spec, inputs, dz, seed,
+                         base_scene) for seed in dz.seeds]  # fmt: skip
+        runs[name] = DesignRun(dz, np.concatenate([p[0] for p in parts]), tuple(p[1] for p in parts),
+                               [ids for p in parts for ids in p[2]])  # fmt: skip
     return Study(spec.name, path, inputs, list(spec.metrics), runs)
 
 
@@ -463,9 +516,11 @@ def _methods(path: str, design: str, methods: list[Any], chosen: tuple[str, ...]
     return [label[name] for name in chosen]
 
 
-def _expand(path: str, base: dict, spec: _GSAFile, inputs: list[Input], design: Design, X: np.ndarray,
-            base_scene: dict) -> DesignRun:  # fmt: skip
-    """One sweep of every sample of ``X`` (a sweep per sample, their tasks merged, identical tasks once)."""
+def _expand(path: str, base: dict, spec: _GSAFile, inputs: list[Input], design: Design, seed: int,
+            base_scene: dict) -> tuple[np.ndarray, Replicate, list[dict[str, list[str]]]]:  # fmt: skip
+    """One replicate's sample (seed ``seed``), its sweep (a sweep per sample, their tasks merged, identical tasks
+    once) and the task ids of each sample."""
+    X = sample(inputs, design, seed)
     tasks: list = []
     seen: set[str] = set()
     axes: dict[str, dict[str, Any]] = {}
@@ -475,7 +530,7 @@ def _expand(path: str, base: dict, spec: _GSAFile, inputs: list[Input], design: 
         try:
             one = load_sweep(_sample_doc(base, spec, inputs, x, base_scene), check_methods=False)
         except UserError as exc:
-            raise UserError(f"{path}: designs.{design.name}: sample {i} ({_describe(inputs, x)}): "
+            raise UserError(f"{path}: designs.{design.name}: {_which(design, seed)}sample {i} ({_describe(inputs, x)}): "
                             f"{str(exc).removeprefix('<sweep>: ')}") from None
         first = first or one
         ids: dict[str, list[str]] = {}
@@ -488,9 +543,15 @@ def _expand(path: str, base: dict, spec: _GSAFile, inputs: list[Input], design: 
             for label, value in values:
                 axes.setdefault(name, {}).setdefault(str(label), (label, value))
         sample_tasks.append(ids)
-    sweep = Sweep(base["name"], path, first.renderer, {n: list(v.values()) for n, v in axes.items()}, first.seeds,
+    name = base["name"] if design.replicates == 1 else f"{base['name']}-seed-{seed}"
+    sweep = Sweep(name, path, first.renderer, {n: list(v.values()) for n, v in axes.items()}, first.seeds,
                   first.methods, tasks, first.crlb)  # fmt: skip
-    return DesignRun(design, X, sweep, sample_tasks)
+    folder = "." if design.replicates == 1 else f"seed-{seed}"
+    return X, Replicate(seed, folder, sweep), sample_tasks
+
+
+def _which(design: Design, seed: int) -> str:
+    return "" if design.replicates == 1 else f"replicate seed {seed}: "
 
 
 def _describe(inputs: list[Input], x: np.ndarray) -> str:

@@ -252,6 +252,9 @@ def test_a_morris_study_through_the_engine_gets_the_exact_elementary_effects(tmp
          "inputs.noise.read_noise: needs the file's noise"),
         ({"designs": {"main": {"method": "fast", "n": 4}}}, "designs.main.method:"),
         ({"designs": {"main": {"method": "sobol", "n": 100}}}, "designs.main: a sobol design needs n a power of 2"),
+        ({"designs": {"main": {"method": "morris", "n": 4, "replicates": 2}}},
+         "designs.main: replicates: a morris design has none"),
+        ({"designs": {"main": {"method": "sobol", "n": 4, "replicates": 0}}}, "designs.main.replicates:"),
         ({"metrics": ["lamp_error"]}, "metrics: unknown metric 'lamp_error'"),
         ({"designs": {"main": {"method": "morris", "n": 4, "levels": 5}}},
          "designs.main.levels: 5 is not a multiple of the 2 labels of input bsdf"),
@@ -408,3 +411,60 @@ def test_outputs_that_vary_only_off_a_and_b_give_no_index_and_no_warning():
     Y[[1, 12]] = 1.0  # rows A_B^1 of blocks 0 and 2
     rows, blocks = analyse(ISHIGAMI_INPUTS, design, X, Y)
     assert blocks == 64 and all(math.isnan(r["ST"]) and math.isnan(r["ST_floor"]) for r in rows)
+
+
+def test_replicates_run_as_sweeps_of_their_own_and_pool_into_one_analysis(tmp_path, monkeypatch, capsys):
+    """Two replicates of n = 32 (seeds 2 and 3): each a sweep in seed-<s>/, the indices over all 64 blocks equal
+    one analysis of the two samples put together, and each replicate's own indices are in convergence.csv."""
+    from nearlight.evaluation.gsa.report import order_changes
+
+    path = _study(tmp_path, monkeypatch, {"method": "sobol", "n": 32, "seed": 2, "replicates": 2})
+    assert main(["gsa", str(path), "--out", str(tmp_path / "res"), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    design = tmp_path / "res" / "main"
+    assert "main replicate seed 2 (seed-2, 2 in all): sobol design, n = 32: 160 samples" in err, err
+    assert "main replicate seed 3 (seed-3, 2 in all)" in err, err
+    assert (design / "seed-2" / "results.parquet").is_file() and (design / "seed-3" / "results.parquet").is_file()
+    study = load_study(path)
+    run = study.runs["main"]
+    assert [r.seed for r in run.replicates] == [2, 3] and run.samples.shape == (2 * 32 * 5, 3)
+    # the replicates are differently scrambled samples, each SALib's own for its seed
+    np.testing.assert_array_equal(run.samples[:160], sample(study.inputs, run.design, 2))
+    assert not np.allclose(run.samples[:160], run.samples[160:])
+    got = pd.read_csv(design / "gsa" / "indices.csv").set_index("input")
+    assert (got["blocks"] == 64).all() and (got["n_blocks"] == 64).all()
+    outputs_csv = pd.read_csv(design / "gsa" / "outputs.csv")
+    Y = outputs_csv["lamp_position_error_m"].to_numpy()
+    want, _ = analyse(study.inputs, run.design, run.samples, Y)
+    np.testing.assert_allclose(got.loc[[r["input"] for r in want], "ST"], [r["ST"] for r in want], rtol=1e-12)
+    conv = pd.read_csv(design / "gsa" / "convergence.csv", dtype={"seeds": str})
+    assert sorted(set(zip(conv["n"], conv["seeds"]))) == [(16, "2"), (32, "2"), (32, "3"), (64, "2+3")]
+    alone = conv[conv["seeds"] == "3"].set_index("input")
+    want3, _ = analyse(study.inputs, run.design, run.samples[160:], Y[160:])
+    np.testing.assert_allclose(alone.loc[[r["input"] for r in want3], "ST"], [r["ST"] for r in want3], rtol=1e-12)
+    assert set(order_changes(conv, "model", "lamp_position_error_m")[1]) == {"16 (seeds 2)", "32 (seeds 2)", "32 (seeds 3)"}
+    md = (design / "gsa" / "gsa.md").read_text()
+    assert "N = 64 (2 replicates of n = 32, seeds 2, 3)" in md, md
+    assert re.search(r"- model, lamp_position_error_m: (the \d pairs apart keep their order in all 3|no two inputs)", md), md
+
+    # a third replicate runs only itself
+    doc = yaml.safe_load(path.read_text())
+    doc["designs"]["main"]["replicates"] = 3
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))  # the inputs in their order: the same samples
+    assert main(["gsa", str(path), "--out", str(tmp_path / "res"), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("ran 0 task(s)") == 2 and "seed-4" in err, err
+    assert (pd.read_csv(design / "gsa" / "indices.csv")["blocks"] == 96).all()
+
+
+def test_order_changes_names_the_pairs_a_part_turns_round():
+    from nearlight.evaluation.gsa.report import order_changes
+
+    def rows(n, seeds, st):
+        return [{"n": n, "seeds": seeds, "method": "m", "metric": "y", "input": name, "ST": v, "ST_lo": v - 0.05,
+                 "ST_hi": v + 0.05, "ST_floor": 0.02} for name, v in st.items()]  # fmt: skip
+
+    conv = pd.DataFrame(rows(64, "1+2", {"a": 0.6, "b": 0.3, "c": 0.28, "d": 0.0})  # b, c overlap: not compared
+                        + rows(32, "1", {"a": 0.5, "b": 0.2, "c": 0.3, "d": 0.01})
+                        + rows(32, "2", {"a": 0.2, "b": 0.4, "c": 0.1, "d": 0.3}))  # fmt: skip
+    assert order_changes(conv, "m", "y") == (["a > b", "a > c"], {"32 (seeds 1)": [], "32 (seeds 2)": ["a > b"]})
