@@ -15,6 +15,9 @@ were analysed). Files:
   each replicate alone; ``convergence_<method>.png``: each input's ST against
   N; the report says whether the inputs whose intervals do not overlap keep
   their order in each of these analyses;
+- ``levels.csv`` (Sobol', with a categorical input): each other input's total
+  index within each of its levels (:func:`sobol_by_level`), so the report says
+  where an input's influence depends on the object's shape or the lobe family;
 - ``outputs.csv``: per sample and method, the inputs' values and every
   analysed metric (the mean over the sample's seeds), in sample order;
 - ``gsa.md``: the headline (which input matters most, per method and
@@ -39,7 +42,7 @@ from ...files.atomic import write_text
 from ...files.figures import pyplot, save_png
 from ...files.outputs import check_files_in, make_folder
 from .morris import step_effects
-from .sobol import distinguishable
+from .sobol import distinguishable, level_total_indices, split
 from .study import DesignRun, Input, Study, analyse, outputs
 from ..engine.provenance import record
 from ..views.report import frame_table, renderers_line
@@ -201,6 +204,10 @@ def order_changes(conv: pd.DataFrame, method: str, metric: str) -> tuple[list[st
     return [f"{a} > {b}" for a, b in pairs], out
 
 
+#: Markers of the later replicates drawn alone (hollow) in the convergence plot.
+HOLLOW = ("o", "s", "^", "D")
+
+
 def plot_convergence(conv: pd.DataFrame, metric: str, method: str, path: Path) -> Path:
     """Each input's ``ST`` with its interval at N/4, N/2 and N (one line per input), the floor shaded."""
     plt = pyplot()
@@ -209,6 +216,7 @@ def plot_convergence(conv: pd.DataFrame, metric: str, method: str, path: Path) -
     first = g["seeds"].str.split("+").str[0] == g.loc[g["n"].idxmax(), "seeds"].split("+")[0]
     alone = g[~first]  # a later replicate alone (the first base samples start with the first): drawn hollow
     g = g[first]
+    later = list(dict.fromkeys(alone["seeds"]))
     fig, ax = plt.subplots(figsize=(6.4, 3.8), constrained_layout=True)
     ns = sorted(g["n"].unique())
     floor = g.groupby("n")["ST_floor"].first().reindex(ns)
@@ -221,16 +229,18 @@ def plot_convergence(conv: pd.DataFrame, metric: str, method: str, path: Path) -
         shift = 2 ** (0.3 * (j - (len(inputs) - 1) / 2) / max(len(inputs) - 1, 1))  # spread one N's markers
         ax.errorbar(np.asarray(ns) * shift, m["ST"], yerr=[m["ST"] - m["ST_lo"], m["ST_hi"] - m["ST"]], marker="o",
                     ms=3, capsize=2, lw=1, label=name, color=colours[j % 20])  # fmt: skip
-        for r in alone[alone["input"] == name].itertuples():  # another seed's replicate, beside the first
-            ax.errorbar([r.n * 1.12 * shift], [r.ST], yerr=[[r.ST - r.ST_lo], [r.ST_hi - r.ST]], marker="o", ms=3,
-                        mfc="white", capsize=2, lw=0, elinewidth=1, color=colours[j % 20])  # fmt: skip
+        for r in alone[alone["input"] == name].itertuples():  # another seed's replicate, right of the first
+            q = later.index(r.seeds)
+            ax.errorbar([r.n * 2 ** (0.35 * (q + 1)) * shift], [r.ST], yerr=[[r.ST - r.ST_lo], [r.ST_hi - r.ST]],
+                        marker=HOLLOW[q % len(HOLLOW)], ms=3, mfc="white", capsize=2, lw=0, elinewidth=1,
+                        color=colours[j % 20])  # fmt: skip
+    for q, seeds in enumerate(later):
+        ax.plot([], [], HOLLOW[q % len(HOLLOW)], mfc="white", color="0.3", ms=4, label=f"seed {seeds} alone")
     ax.set_xscale("log", base=2)
     ax.set_xticks(ns, [str(n) for n in ns])
     ax.set_xlabel("base samples N")
     ax.set_ylabel("total index ST")
-    seeds = sorted(alone["seeds"].unique())
-    ax.set_title(f"{method}, {metric}: ST at N/4, N/2, N" + (f"; hollow: seed {', '.join(seeds)} alone" if seeds else ""),
-                 fontsize=9)  # fmt: skip
+    ax.set_title(f"{method}, {metric}: ST at N/4, N/2, N", fontsize=9)
     ax.legend(fontsize=6, ncol=2, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     return save_png(fig, path, dpi=110)
 
@@ -256,6 +266,63 @@ def effects_by_level(inputs: list[Input], design_levels: int, X: np.ndarray, Y: 
                 col.append(float(np.abs(e).mean()) if i != c and e.size else math.nan)
             columns[f"{cat.name}={label}"] = col
     return pd.DataFrame({"input": [i.name for i in inputs], **columns}) if columns else pd.DataFrame()
+
+
+def sobol_by_level(study: Study, run: DesignRun, table: pd.DataFrame) -> pd.DataFrame:
+    """Total indices of every other input within each level of each categorical input, per method × metric.
+
+    :func:`~nearlight.evaluation.gsa.sobol.level_total_indices` over the analysed blocks (every output finite);
+    long form: ``method``, ``metric``, ``input``, ``level`` (``"<categorical>=<label>"``), ``ST``, ``ST_lo``,
+    ``ST_hi``, ``ST_floor``, ``blocks`` (blocks whose ``A`` has the level). Empty for Morris or without a
+    categorical input.
+    """
+    design, inputs = run.design, study.inputs
+    cats = [(c, inp) for c, inp in enumerate(inputs) if inp.labels is not None]
+    if design.method != "sobol" or not cats:
+        return pd.DataFrame()
+    k = len(inputs)
+    size = design.block(k)
+    rows = []
+    for method in run.sweep.methods:
+        for metric in study.metrics:
+            Y = sample_outputs(table, method.label, metric)
+            keep = np.isfinite(Y.reshape(-1, size)).all(axis=1)
+            if keep.sum() < 2:
+                continue
+            X = run.samples.reshape(-1, size, k)[keep]
+            Yk = Y.reshape(-1, size)[keep].ravel()
+            if np.ptp(np.r_[split(Yk, k)[0], split(Yk, k)[1]]) == 0:
+                continue
+            for c, cat in cats:
+                level_a = np.minimum(np.floor(X[:, 0, c]).astype(int), len(cat.labels) - 1)
+                level_b = np.minimum(np.floor(X[:, -1, c]).astype(int), len(cat.labels) - 1)
+                for lv, (label, _) in enumerate(cat.labels):
+                    got = level_total_indices(Yk, k, level_a == lv, level_b == lv, resamples=design.resamples,
+                                              conf_level=design.conf_level, seed=design.seed)  # fmt: skip
+                    rows += [{"method": method.label, "metric": metric, "input": inp.name,
+                              "level": f"{cat.name}={label}", "ST": float(got["ST"][j]),
+                              "ST_lo": float(got["ST_lo"][j]), "ST_hi": float(got["ST_hi"][j]),
+                              "ST_floor": float(got["ST_floor"]), "blocks": got["blocks"]}
+                             for j, inp in enumerate(inputs) if j != c]  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def _level_cells(levels: pd.DataFrame, method: str, metric: str) -> pd.DataFrame:
+    """One method's per-level table: a row per input, a column per level, ``ST [lo, hi]`` (``≈ 0`` within the
+    level's floor), and the floor and the blocks as the last rows."""
+    g = levels[(levels["method"] == method) & (levels["metric"] == metric)]
+
+    def cell(r: pd.Series) -> str:
+        if pd.isna(r.ST):
+            return "n/a"
+        return f"{r.ST:.2f} [{r.ST_lo:.2f}, {r.ST_hi:.2f}]" + ("" if distinguishable(r.ST_lo, r.ST_floor) else " ≈ 0")
+
+    wide = g.assign(cell=g.apply(cell, axis=1)).pivot_table(index="input", columns="level", values="cell",
+                                                             aggfunc="first", sort=False).fillna("")  # fmt: skip
+    per = g.groupby("level", sort=False)[["ST_floor", "blocks"]].first()
+    extra = [{"input": "floor (ST)", **{lv: f"{per.at[lv, 'ST_floor']:.2f}" for lv in wide.columns}},
+             {"input": "blocks", **{lv: str(int(per.at[lv, "blocks"])) for lv in wide.columns}}]  # fmt: skip
+    return pd.concat([wide.reset_index(), pd.DataFrame(extra)], ignore_index=True)
 
 
 def where_it_matters(table: pd.DataFrame, inp: Input, metric: str, method: str) -> str:
@@ -348,7 +415,7 @@ def check_report_out(study: Study, run: DesignRun, results_dir: str | Path) -> P
     pngs |= {f"scatter_{_safe(m.label)}.png": "png" for m in run.sweep.methods}
     pngs |= {f"convergence_{_safe(m.label)}.png": "png" for m in run.sweep.methods}
     check_files_in(folder, {"indices.csv": "report-csv", "outputs.csv": "report-csv", "convergence.csv": "report-csv",
-                            "gsa.md": "report-md", **pngs})  # fmt: skip
+                            "levels.csv": "report-csv", "gsa.md": "report-md", **pngs})  # fmt: skip
     return folder
 
 
@@ -385,6 +452,9 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
     write_text(folder / "outputs.csv", table.to_csv(index=False), what="the report")
     if not conv.empty:
         write_text(folder / "convergence.csv", conv.to_csv(index=False), what="the report")
+    levels = sobol_by_level(study, run, table)
+    if not levels.empty:
+        write_text(folder / "levels.csv", levels.to_csv(index=False), what="the report")
     what = ("Sobol' indices (Saltelli sample, SALib's estimators): total ST [percentile bootstrap interval], "
             "first-order S1 [its interval] in brackets; `≈ 0`: the ST interval does not stand above the floor, "
             "the index a dummy input gets by chance at this N (Khorashadi Zadeh et al. 2017, as sensobol's "
@@ -434,6 +504,13 @@ def write_gsa_report(study: Study, run: DesignRun, results_dir: str | Path, *, c
             Y = sample_outputs(table, method, metrics[0])
             by = effects_by_level(study.inputs, run.design.levels, run.samples, Y)
             md += [f"**{method}**", "", frame_table(by.round(4)), ""]
+    if not levels.empty:
+        md += ["## Where an input's effect depends on a categorical input", "",
+               f"Total indices ST [interval] of {metrics[0]} within each level of each categorical input, as "
+               "shares of that level's own variance (Jansen's estimator over the base samples whose A has the "
+               "level; `≈ 0`: within that level's floor): `levels.csv` has every metric.", ""]  # fmt: skip
+        for method in methods:
+            md += [f"**{method}**", "", frame_table(_level_cells(levels, method, metrics[0])), ""]
     md += ["## Where each influential input matters", "",
            (f"From the scatter of {metrics[0]}: each input whose ST stands above the floor" if design == "sobol" else
             f"From the scatter of {metrics[0]}: each input whose mu* is at least a tenth of the largest"), ""]  # fmt: skip

@@ -114,3 +114,57 @@ def sobol_indices(Y: np.ndarray, k: int, *, resamples: int = 1000, conf_level: f
 def distinguishable(lo: float, floor: float) -> bool:
     """Whether an index whose interval starts at ``lo`` stands above the chance ``floor`` (NaN: no)."""
     return bool(math.isfinite(lo) and math.isfinite(floor) and lo > floor)
+
+
+def level_total_indices(Y: np.ndarray, k: int, level_a: np.ndarray, level_b: np.ndarray, *, resamples: int = 1000,
+                        conf_level: float = 0.95, seed: int = 0) -> dict[str, np.ndarray]:  # fmt: skip
+    """Total indices within one level of a categorical input, as shares of that level's own variance.
+
+    A row ``A_B^i`` of an input other than the categorical one keeps ``A``'s level, so the blocks whose ``A``
+    has the level are a Saltelli sample of the study with the level fixed, for every other input's total
+    index (Jansen's estimator, :func:`SALib.analyze.sobol.total_order`, needs ``f(A)`` and ``f(A_B^i)`` only).
+    The variance is that of ``f(A)`` and ``f(B)`` wherever they have the level; the floor is the dummy's
+    (:func:`dummy_indices`) over the blocks where both do. First-order indices would need ``B`` at the level
+    too (a quarter of the blocks with two levels) and are not given.
+
+    Parameters
+    ----------
+    Y : ndarray, shape (N·(k + 2),)
+        A Saltelli sample's outputs in SALib's order, all finite.
+    k : int
+        Inputs.
+    level_a, level_b : ndarray of bool, shape (N,)
+        Whether ``A`` (``B``) of each block has the level.
+    resamples, conf_level, seed
+        As :func:`sobol_indices` (resamples of the blocks whose ``A`` has the level, and of the ``B`` at it for
+        the variance).
+
+    Returns
+    -------
+    dict
+        ``ST``, ``ST_lo``, ``ST_hi`` shape ``(k,)`` (the categorical input's own entry is meaningless: the caller
+        drops it); ``ST_floor`` scalar; ``blocks``: blocks used. NaN everywhere with fewer than 2 blocks or no
+        variance at the level.
+    """
+    A, B, AB = split(Y, k)
+    level_a, level_b = np.asarray(level_a, dtype=bool), np.asarray(level_b, dtype=bool)
+    n = int(level_a.sum())
+    V = np.var(np.r_[A[level_a], B[level_b]]) if n else 0.0
+    nan = np.full(k, np.nan)
+    if n < 2 or not V > 0:
+        return {"ST": nan, "ST_lo": nan, "ST_hi": nan, "ST_floor": np.asarray(np.nan), "blocks": n}
+    a, ab, b = A[level_a], AB[level_a], B[level_b]
+    rng = np.random.default_rng(seed)
+    r, rb = rng.integers(n, size=(n, resamples)), rng.integers(max(len(b), 1), size=(len(b), resamples))
+    point = 0.5 * np.mean((a[:, None] - ab) ** 2, axis=0) / V
+    Vb = np.var(np.r_[a[r], b[rb]], axis=0)  # (resamples,): the variance resampled with the blocks
+    with np.errstate(divide="ignore", invalid="ignore"):
+        boot = 0.5 * np.mean((a[r][..., None] - ab[r]) ** 2, axis=0) / Vb[:, None]  # (resamples, k)
+    lo, hi = np.quantile(boot, [(1 - conf_level) / 2, (1 + conf_level) / 2], axis=0)
+    both = level_a & level_b
+    floor = np.nan
+    if both.sum() >= 2:
+        rb = np.random.default_rng(seed).integers(both.sum(), size=(both.sum(), resamples))
+        _, st_dummy = dummy_indices(A[both][rb], B[both][rb])
+        floor = np.nanquantile(st_dummy, (1 + conf_level) / 2) if np.isfinite(st_dummy).any() else np.nan
+    return {"ST": point, "ST_lo": lo, "ST_hi": hi, "ST_floor": np.asarray(floor), "blocks": n}

@@ -218,6 +218,13 @@ def test_a_study_through_the_engine_and_the_cli_recovers_the_sobol_indices_of_a_
     assert "## Convergence" in md and (report / "convergence.csv").is_file()
     conv = pd.read_csv(report / "convergence.csv")
     assert sorted(conv["n"].unique()) == [16, 32, 64] and len(conv) == 3 * 3
+    # within either lobe family the shares are those of the two other terms: 16/20 and 4/20
+    levels = pd.read_csv(report / "levels.csv")
+    assert sorted(levels["level"].unique()) == ["bsdf=torrance_sparrow", "bsdf=ward"] and len(levels) == 2 * 2
+    for r in levels.itertuples():
+        w = {"lamp_distance": 0.8, "roughness": 0.2}[r.input]
+        assert r.ST_lo <= w <= r.ST_hi, r
+    assert "## Where an input's effect depends on a categorical input" in (report / "gsa.md").read_text()
     for png in ("indices_lamp_position_error_m.png", "scatter_model.png", "convergence_model.png"):
         assert (report / png).read_bytes()[:4] == b"\x89PNG"
     prov = json.loads((tmp_path / "res" / "main" / "provenance.json").read_text())
@@ -468,3 +475,26 @@ def test_order_changes_names_the_pairs_a_part_turns_round():
                         + rows(32, "1", {"a": 0.5, "b": 0.2, "c": 0.3, "d": 0.01})
                         + rows(32, "2", {"a": 0.2, "b": 0.4, "c": 0.1, "d": 0.3}))  # fmt: skip
     assert order_changes(conv, "m", "y") == (["a > b", "a > c"], {"32 (seeds 1)": [], "32 (seeds 2)": ["a > b"]})
+
+
+def test_total_indices_within_a_level_of_a_categorical_input_are_the_closed_form_shares_there():
+    """y = x1 + c·x2 with c ∈ {0, 1} a fair categorical input and x1, x2 ~ U(0, 1): where c = 0, x2 does nothing
+    (ST = 0, within the level's floor) and x1 is everything (ST = 1); where c = 1, x1 and x2 share the
+    variance equally (ST = 1/2 each: y = x1 + x2 has no interaction)."""
+    from nearlight.evaluation.gsa.sobol import level_total_indices
+
+    inputs = [Input("x1", "uniform", (0.0, 1.0)), Input("x2", "uniform", (0.0, 1.0)),
+              Input("c", "labels", (0.0, 2.0), [("off", 0), ("on", 1)])]  # fmt: skip
+    design = Design("d", "sobol", n=4096, seed=5)
+    X = sample(inputs, design)
+    c = np.floor(X[:, 2])
+    Y = X[:, 0] + c * X[:, 1]
+    blocks = X.reshape(-1, 5, 3)
+    for level, want in ((0, [1.0, 0.0]), (1, [0.5, 0.5])):
+        got = level_total_indices(Y, 3, np.floor(blocks[:, 0, 2]) == level, np.floor(blocks[:, -1, 2]) == level,
+                                  seed=1)  # fmt: skip
+        assert 1900 < got["blocks"] < 2200, got["blocks"]  # about half of the 4096 base samples
+        for j, w in enumerate(want):
+            assert got["ST_lo"][j] <= w <= got["ST_hi"][j] and got["ST_hi"][j] - got["ST_lo"][j] < 0.1, (level, j, got)
+        assert 0 < got["ST_floor"] < 0.1
+        assert (got["ST_hi"][1] <= got["ST_floor"]) == (level == 0)  # x2 within the floor only where c = 0
