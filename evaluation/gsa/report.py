@@ -291,7 +291,8 @@ def sobol_by_level(study: Study, run: DesignRun, table: pd.DataFrame) -> pd.Data
                 continue
             X = run.samples.reshape(-1, size, k)[keep]
             Yk = Y.reshape(-1, size)[keep].ravel()
-            if np.ptp(np.r_[split(Yk, k)[0], split(Yk, k)[1]]) == 0:
+            A, B, _ = split(Yk, k)
+            if np.ptp(np.r_[A, B]) == 0:  # no variance in A and B: no index (as sobol_indices)
                 continue
             for c, cat in cats:
                 level_a = np.minimum(np.floor(X[:, 0, c]).astype(int), len(cat.labels) - 1)
