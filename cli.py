@@ -32,6 +32,7 @@ from .estimator import cli as estimator_cli
 from .evaluation.engine import cli as engine_cli
 from .evaluation.gsa import cli as gsa_cli
 from .evaluation.paper import cli as paper_cli
+from .evaluation.site import cli as site_cli
 from .evaluation.suites import cli as suites_cli
 from .evaluation.views import cli as views_cli
 from .generator import cli as generator_cli
@@ -39,7 +40,8 @@ from .rig import cli as rig_cli
 
 #: Modules whose ``register(subparsers)`` adds verbs, in help order. Importing
 #: them imports nothing heavy: Mitsuba is imported only when a verb that renders runs.
-VERB_MODULES = (paper_cli, generator_cli, rig_cli, estimator_cli, engine_cli, views_cli, gsa_cli, suites_cli)
+VERB_MODULES = (paper_cli, generator_cli, rig_cli, estimator_cli, engine_cli, views_cli, gsa_cli, suites_cli,
+                site_cli)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -875,6 +875,69 @@ def _closed_form_cases() -> None:
 _closed_form_cases()
 
 
+# --------------------------------------------------------------------------- site: sources and the site's place
+
+
+def _site_cases() -> None:
+    def scores(folder: Path, assets: dict[str, Path]) -> Path:
+        src = folder / "reports" / "scores"
+        shutil.copytree(assets["score"], src / "tiny", ignore=shutil.ignore_patterns("parts", "renders"))
+        return folder / "reports"
+
+    @case("site-source-missing")
+    def build(folder, assets):
+        return ["site", str(folder / "no-such-reports"), "--out", str(folder / "site")], "no-such-reports"
+
+    @case("site-source-is-a-file")
+    def build(folder, assets):
+        return ["site", str(_write(folder / "notes.txt", "x")), "--out", str(folder / "site")], "notes.txt"
+
+    @case("site-source-without-reports")
+    def build(folder, assets):
+        _write(folder / "empty" / "data.csv", "a,b\n1,2\n")
+        return ["site", str(folder / "empty"), "--out", str(folder / "site")], "no scorecard.json and no Markdown"
+
+    for name, data in {"not-json": b"{ nope", "empty": b"", "utf16": '{"format": 1}'.encode("utf-16"),
+                       "groups-of-numbers": json.dumps({"format": "nearlight-scorecard/1", "thresholds": {
+                           "lamp_position_error_pct": [1.0]}, "groups": [3]}).encode(),
+                       "recall-missing": json.dumps({"format": "nearlight-scorecard/1", "thresholds": {
+                           "lamp_position_error_pct": [1.0]}, "groups": [{"category": "all", "value": "all",
+                           "n": 1, "failed": 0, "lamp_position_error_pct": {"median": 1.0}}]}).encode()}.items():  # fmt: skip
+        @case(f"site-scorecard-{name}")
+        def build(folder, assets, data=data):
+            reports = scores(folder, assets)
+            card = reports / "scores" / "tiny" / "scorecard.json"
+            card.write_bytes(data)
+            return ["site", str(reports), "--out", str(folder / "site")], str(card)
+
+    @case("site-markdown-not-utf8")
+    def build(folder, assets):
+        md = _write(folder / "reports" / "summary.md", b"# Results\n\xff\xfe broken\n")
+        return ["site", str(folder / "reports"), "--out", str(folder / "site")], str(md)
+
+    @case("site-out-user-folder")
+    def build(folder, assets):
+        return ["site", str(scores(folder, assets)), "--out", str(_user_folder(folder))], "mine"
+
+    @case("site-out-is-a-file")
+    def build(folder, assets):
+        return ["site", str(scores(folder, assets)), "--out", str(_write(folder / "site.html", "x"))], "site.html"
+
+    @case("site-out-record-damaged")
+    def build(folder, assets):
+        _write(folder / "site" / "site.json", "{ nope")
+        return ["site", str(scores(folder, assets)), "--out", str(folder / "site")], "site.json"
+
+    @case("site-out-a-user-file-where-a-page-goes")
+    def build(folder, assets):
+        _write(folder / "site" / "site.json", json.dumps({"format": "nearlight-site/1", "files": ["site.json"]}))
+        _write(folder / "site" / "index.html", "<p>my own page</p>")
+        return ["site", str(scores(folder, assets)), "--out", str(folder / "site")], "index.html"
+
+
+_site_cases()
+
+
 # --------------------------------------------------------------------------- running the cases
 
 
