@@ -25,13 +25,19 @@ td a { color: inherit; text-decoration: none; border-bottom: 1px dotted #888; }
 td.num, td.text { text-align: right; white-space: nowrap; }
 td.text { text-align: left; }
 .outside { color: #777; border-bottom: 1px dashed #bbb; }
+img.broken { outline: 2px solid #c00; }
 img { max-width: 100%; }
 .note { color: #555; }
 """
 
 JS = """
-// nearlight site: show one category's table, sort a table by a clicked column (data-sort of its cells)
+// nearlight site: show one category's table, sort a table by a clicked column (data-sort of its cells),
+// and say so on the page when a figure does not load
 document.addEventListener('DOMContentLoaded', function () {
+  document.querySelectorAll('img').forEach(function (img) {
+    function broken() { img.classList.add('broken'); img.alt = 'figure missing: ' + img.getAttribute('src'); }
+    if (img.complete && img.naturalWidth === 0) { broken(); } else { img.addEventListener('error', broken); }
+  });
   var pick = document.getElementById('group');
   function show() {
     document.querySelectorAll('section.group').forEach(function (s) {
