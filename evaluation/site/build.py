@@ -4,6 +4,8 @@ Layout of ``SITE/``::
 
     index.html                       leaderboards, then every report page, by source folder
     suite-<suite>.html               a suite's leaderboard (a table per category value)
+    history.html, history/<k>.png    each metric per commit of the committed scorecards and baselines, and per
+                                     run of several results folders of one sweep (:mod:`.history`)
     pages/<label>/<path>.html        each Markdown report of source folder <label>, at its own path
     data/<label>/<path>              the scorecards and every file a page links or shows, copied
     style.css, site.js               the site's own style and table sorting (no file is fetched at view time)
@@ -31,6 +33,7 @@ from ...errors import UserError
 from ...files.atomic import atomic_write, write_text
 from ...files.outputs import check_folder
 from ..engine.provenance import code_version
+from .history import Series, committed_folders, folder_series, git_series, repository
 from .leaderboard import Row, is_scorecard, rows, run_by, version
 from .pages import Place, page_html, read_markdown, title_of
 
@@ -94,7 +97,7 @@ def _read_json(path: Path) -> Any:
 class Site:
     """The pages and files of one build, before anything is written."""
 
-    def __init__(self, dirs: Sequence[str | os.PathLike], out: Path):
+    def __init__(self, dirs: Sequence[str | os.PathLike], out: Path, *, history: bool = True):
         self.sources = _sources(dirs)
         self.out = out
         self.files: dict[str, str | Path] = {}  # site path -> text, or a source file to copy
@@ -110,12 +113,25 @@ class Site:
                     self.markdown[file] = f"pages/{src.label}/{rel[:-3]}.html"
                 elif file.name == "scorecard.json":
                     self.cards.append((file, f"data/{src.label}/{rel}"))
-        if not self.markdown and not self.cards:
+        self.history: list[Series] = self._history() if history else []
+        if not self.markdown and not self.cards and not self.history:
             raise UserError(f"{', '.join(str(s.folder) for s in self.sources)}: no scorecard.json and no Markdown report "
                             "under it (expected committed reports, results folders or score folders)")  # fmt: skip
         self.place = Place(site_path=lambda f: _data_path(f, self.sources), page_of=self.markdown.get)
         self.boards = self._boards()
         self.pages = self._pages()
+
+    def _history(self) -> list[Series]:
+        """The given results folders of one sweep, then the git history of the committed folders under the sources."""
+        out = folder_series([s.folder for s in self.sources])
+        repos: dict[Path, list[Path]] = {}
+        for s in self.sources:
+            repo = repository(s.folder)
+            if repo is not None:
+                repos.setdefault(repo, []).append(s.folder)
+        for repo, folders in repos.items():
+            out += git_series(repo, committed_folders(repo, folders))
+        return out
 
     def _boards(self) -> list[Board]:
         boards = []
@@ -209,21 +225,25 @@ def check_site_out(out: str | os.PathLike, writes: Iterable[str]) -> set[str]:
     return ours
 
 
-def write_site(site: Site, html: dict[str, str]) -> list[str]:
-    """Write the pages ``html`` (site path -> text) and the copied files into ``site.out`` and its record.
+def write_site(site: Site, html: dict[str, str | bytes]) -> list[str]:
+    """Write the pages ``html`` (site path -> text, or the bytes of a figure) and the copied files into
+    ``site.out``, and its record.
 
     Returns
     -------
     list of str
         Every file written (site paths), sorted.
     """
-    everything = {**{k: v for k, v in site.files.items()}, **html}
+    everything = {**site.files, **html}
     check_site_out(site.out, [*everything, "site.json"])
     for rel, what in sorted(everything.items()):
         dest = site.out / rel
         if isinstance(what, Path):
             dest.parent.mkdir(parents=True, exist_ok=True)
             atomic_write(dest, lambda tmp, src=what: shutil.copyfile(src, tmp))
+        elif isinstance(what, bytes):
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write(dest, lambda tmp, data=what: Path(tmp).write_bytes(data))
         else:
             write_text(dest, what, what="the site")
     written = sorted([*everything, "site.json"])

@@ -17,10 +17,9 @@ from pathlib import Path
 
 import pytest
 
-from nearlight.cli import main
 from nearlight.evaluation.site.leaderboard import resolve, show
 
-from .test_site import REPORTS, _Links
+from .test_site import _Links
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="Debian's Chromium is not installed (scripts/setup installs "
@@ -35,9 +34,8 @@ def _chromium(page: Path, *args: str) -> str:
     return run.stdout
 
 
-def test_the_built_site_in_a_browser_shows_every_number_of_its_json_and_every_figure(tmp_path, capsys):
-    site = tmp_path / "site"
-    assert main(["site", str(REPORTS), "--out", str(site)]) == 0
+def test_the_built_site_in_a_browser_shows_every_number_of_its_json_and_every_figure(committed_site, tmp_path, capsys):
+    site = committed_site
     board = site / "suite-core-v1.html"
     dom = _chromium(board, "--dump-dom")
     links = _Links()

@@ -9,17 +9,15 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 from html.parser import HTMLParser
 from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
-import pytest
 
 from nearlight.cli import main
 from nearlight.evaluation.site.leaderboard import resolve, show
 
-REPORTS = Path(__file__).resolve().parents[3] / "reports"
+from .conftest import REPORTS
 
 
 class _Links(HTMLParser):
@@ -65,13 +63,6 @@ def _broken_refs(site: Path) -> list[str]:
             if not (page.parent / unquote(parts.path)).is_file():
                 broken.append(f"{page.relative_to(site)}: {ref}")
     return broken
-
-
-@pytest.fixture(scope="module")
-def committed_site(tmp_path_factory) -> Path:
-    site = tmp_path_factory.mktemp("site") / "site"
-    assert main(["site", str(REPORTS), "--out", str(site)]) == 0
-    return site
 
 
 def test_every_leaderboard_cell_is_its_scorecards_number(committed_site):
