@@ -935,6 +935,23 @@ def _site_cases() -> None:
         return ["site", str(scores(folder, assets)), "--out", str(folder / "site")], "index.html"
 
 
+    @case("site-built-suite-case-escapes")
+    def build(folder, assets):
+        suite = _copy_suite(folder, assets)
+        doc = json.loads((suite / "manifest.json").read_text())
+        doc["cases"][0]["path"] = "../../victim/important"
+        (suite / "manifest.json").write_text(json.dumps(doc))
+        _write(folder / "victim" / "important" / "input" / "capture.json", "{}")
+        return ["site", str(suite), "--out", str(folder / "site")], "manifest.json"
+
+    @case("site-built-suite-case-input-missing")
+    def build(folder, assets):
+        suite = _copy_suite(folder, assets)
+        case_dir = suite / json.loads((suite / "manifest.json").read_text())["cases"][0]["path"] / "input"
+        shutil.rmtree(case_dir)
+        return ["site", str(suite), "--out", str(folder / "site")], "input"
+
+
 _site_cases()
 
 

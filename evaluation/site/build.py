@@ -6,6 +6,8 @@ Layout of ``SITE/``::
     suite-<suite>.html               a suite's leaderboard (a table per category value)
     history.html, history/<k>.png    each metric per commit of the committed scorecards and baselines, and per
                                      run of several results folders of one sweep (:mod:`.history`)
+    built/<label>/<path>/index.html  a built suite's cases as thumbnails, each opening its contact sheet
+                                     (``<id>.png``: ``nearlight show`` of the case's input capture)
     pages/<label>/<path>.html        each Markdown report of source folder <label>, at its own path
     data/<label>/<path>              the scorecards and every file a page links or shows, copied
     style.css, site.js               the site's own style and table sorting (no file is fetched at view time)
@@ -23,6 +25,7 @@ import dataclasses
 import datetime as dt
 import json
 import os
+import posixpath
 import re
 import shutil
 from collections.abc import Iterable, Sequence
@@ -33,6 +36,7 @@ from ...errors import UserError
 from ...files.atomic import atomic_write, write_text
 from ...files.outputs import check_folder
 from ..engine.provenance import code_version
+from ..suites.suite import FORMAT as SUITE_FORMAT
 from .history import Series, committed_folders, folder_series, git_series, repository
 from .leaderboard import Row, is_scorecard, rows, run_by, version
 from .pages import Place, page_html, read_markdown, title_of
@@ -100,10 +104,11 @@ class Site:
     def __init__(self, dirs: Sequence[str | os.PathLike], out: Path, *, history: bool = True):
         self.sources = _sources(dirs)
         self.out = out
-        self.files: dict[str, str | Path] = {}  # site path -> text, or a source file to copy
+        self.files: dict[str, str | bytes | Path] = {}  # site path -> text, bytes, or a source file to copy
         exclude = out.resolve()
         self.markdown: dict[Path, str] = {}  # source -> page
         self.cards: list[tuple[Path, str]] = []
+        self.built: list[tuple[Path, Source]] = []
         where: dict[Path, Source] = {}
         for src in self.sources:
             for file in _walk(src, exclude):
@@ -113,13 +118,37 @@ class Site:
                     self.markdown[file] = f"pages/{src.label}/{rel[:-3]}.html"
                 elif file.name == "scorecard.json":
                     self.cards.append((file, f"data/{src.label}/{rel}"))
+                elif file.name == "manifest.json" and _is_suite_manifest(file):
+                    self.built.append((file.parent, src))
         self.history: list[Series] = self._history() if history else []
-        if not self.markdown and not self.cards and not self.history:
+        if not self.markdown and not self.cards and not self.history and not self.built:
             raise UserError(f"{', '.join(str(s.folder) for s in self.sources)}: no scorecard.json and no Markdown report "
                             "under it (expected committed reports, results folders or score folders)")  # fmt: skip
         self.place = Place(site_path=lambda f: _data_path(f, self.sources), page_of=self.markdown.get)
         self.boards = self._boards()
         self.pages = self._pages()
+        self.suites_built = [self._cases(folder, src) for folder, src in self.built]
+
+    def _cases(self, folder: Path, src: Source) -> dict[str, Any]:
+        """A built suite's page: each case's contact sheet (``nearlight show`` of its input capture) as a figure."""
+        import tempfile
+
+        from ...generator.show import contact_sheet
+        from ..suites.suite import read_manifest
+
+        manifest = read_manifest(folder)
+        rel = folder.relative_to(src.folder).as_posix()
+        page = posixpath.normpath(f"built/{src.label}/{rel}/index.html")
+        cases = []
+        with tempfile.TemporaryDirectory(prefix="nearlight-site-") as tmp:
+            for case in manifest["cases"]:
+                png = posixpath.join(posixpath.dirname(page), f"{case['id']}.png")
+                out = contact_sheet(folder / case["path"] / "input", Path(tmp) / "sheet.png")
+                self.files[png] = out.read_bytes()
+                cases.append({"id": case["id"], "png": posixpath.basename(png),
+                              "categories": ", ".join(f"{k}={v}" for k, v in case.get("categories", {}).items())})
+        return {"name": str(manifest.get("name", folder.name)), "version": manifest.get("version", ""),
+                "page": page, "folder": f"{src.label}/{rel}", "cases": cases}
 
     def _history(self) -> list[Series]:
         """The given results folders of one sweep, then the git history of the committed folders under the sources."""
@@ -166,6 +195,14 @@ class Site:
         for b in sorted(self.boards, key=lambda b: (b.suite, b.method, b.version)):
             out.setdefault(b.suite, []).append(b)
         return out
+
+
+def _is_suite_manifest(path: Path) -> bool:
+    """Whether ``path`` claims to be a built suite's manifest (its reading checks the rest, one line if damaged)."""
+    try:
+        return json.loads(path.read_bytes().decode("utf-8")).get("format") == SUITE_FORMAT
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError):
+        return False
 
 
 def _data_path(file: Path, sources: list[Source]) -> str | None:

@@ -34,6 +34,8 @@ td.text { text-align: left; }
 img.broken { outline: 2px solid #c00; }
 img { max-width: 100%; }
 .note { color: #555; }
+.cases { display: flex; flex-wrap: wrap; gap: 10px; }
+.cases figure { margin: 0; width: 240px; font-size: 12px; }
 """
 
 JS = """
@@ -81,6 +83,7 @@ INDEX = """{% extends "layout" %}{% block body %}
 {% if suites %}<ul>{% for s in suites %}<li><a href="{{ s.page }}">{{ s.name }}</a>: {{ s.methods|join(", ") }}</li>{% endfor %}</ul>
 {% else %}<p class="note">No scorecard in the sources.</p>{% endif %}
 {% if history %}<h2>History</h2><p><a href="history.html">Each metric per commit of the committed scorecards and baselines</a>, with the commits where <code>compare</code> says a metric got worse marked.</p>{% endif %}
+{% if built %}<h2>Built suites</h2><ul>{% for s in built %}<li><a href="{{ s.page }}">{{ s.name }} v{{ s.version }}</a>: {{ s.cases|length }} cases ({{ s.folder }})</li>{% endfor %}</ul>{% endif %}
 <h2>Reports</h2>
 {% for label, pages in reports %}<h3>{{ label }}</h3>
 <table><thead><tr><th>report</th><th>file</th><th>made by</th></tr></thead><tbody>
@@ -116,6 +119,14 @@ folder are the commits that changed its results, oldest first; every number link
 {% endfor %}</tbody></table>{% endfor %}</section>{% endfor %}
 {% endblock %}"""
 
+BUILT = """{% extends "layout" %}{% block body %}
+<h1>Built suite: {{ s.name }} v{{ s.version }}</h1>
+<p class="note">{{ s.folder }}: {{ s.cases|length }} cases; each shows what the method sees (its input capture);
+click one for its contact sheet.</p>
+<div class="cases">{% for c in s.cases %}<figure><a href="{{ c.png }}"><img src="{{ c.png }}" alt="case {{ c.id }}" width="240"></a>
+<figcaption>{{ c.id }}{% if c.categories %}: {{ c.categories }}{% endif %}</figcaption></figure>{% endfor %}</div>
+{% endblock %}"""
+
 PAGE = """{% extends "layout" %}{% block body %}
 <p class="note">{{ rel }}{% if made %} · made by {{ made }}{% endif %}</p>
 {{ body|safe }}
@@ -126,7 +137,8 @@ def _env():
     import jinja2
 
     return jinja2.Environment(loader=jinja2.DictLoader({"layout": LAYOUT, "index": INDEX, "suite": SUITE,
-                                                        "page": PAGE, "history": HISTORY}), autoescape=True)  # fmt: skip
+                                                        "page": PAGE, "history": HISTORY, "built": BUILT}),
+                              autoescape=True)  # fmt: skip
 
 
 def _cell(cell: Cell | None, board: Any, root: str = "") -> Any:
@@ -229,7 +241,7 @@ def render(site: Site) -> dict[str, str | bytes]:
         root = "../" * p["page"].count("/")
         out[p["page"]] = env.get_template("page").render(**common, root=root, title=p["title"], rel=rel,
                                                           made=p["made"], body=p["body"])  # fmt: skip
-    out["index.html"] = env.get_template("index").render(**common, root="", title="results",
+    out["index.html"] = env.get_template("index").render(**common, root="", title="results", built=site.suites_built,
                                                           reports=list(reports.items()))  # fmt: skip
     for name, boards in suites.items():
         groups = list(dict.fromkeys(r.group for b in boards for r in b.rows))
@@ -240,5 +252,8 @@ def render(site: Site) -> dict[str, str | bytes]:
                                                                   cell=_cell)  # fmt: skip
     if site.history:
         _history_page(env, common, site, out)
+    for s in site.suites_built:
+        root = "../" * s["page"].count("/")
+        out[s["page"]] = env.get_template("built").render(**common, root=root, title=s["name"], s=s)
     assert all(posixpath.normpath(k) == k for k in out)
     return out

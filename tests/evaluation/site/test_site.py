@@ -138,3 +138,25 @@ def test_a_self_reported_scorecard_is_marked_and_links_out_of_the_site_become_te
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "more.html: exists and nearlight did not write it" in err, err
     assert (site / "pages/results/more.html").read_text() == "<p>mine</p>"
+
+
+def test_a_built_suite_shows_each_case_as_a_thumbnail_that_opens_its_contact_sheet(tmp_path, capsys):
+    from nearlight.evaluation.suites.suite import load_suite, read_manifest
+
+    doc = {"name": "thumbs-v1", "version": 1, "renderer": "analytic", "scene": {"width": 24, "height": 18},
+           "axes": {"lamp_distance": [0.3, 0.5]}, "seeds": 1, "categories": ["lamp_distance"]}  # fmt: skip
+    path = tmp_path / "suite.yaml"
+    path.write_text(json.dumps(doc))
+    path.write_text(json.dumps({**doc, "cases_hash": load_suite(path, check_pin=False).cases_hash}))
+    built = tmp_path / "sources" / "thumbs"
+    assert main(["suite", "build", str(path), "--out", str(built), "--quiet", "--no-cache"]) == 0
+    site = tmp_path / "site"
+    assert main(["site", str(tmp_path / "sources"), "--out", str(site)]) == 0
+    page = site / "built" / "sources" / "thumbs" / "index.html"
+    html = page.read_text()
+    ids = [c["id"] for c in read_manifest(built)["cases"]]
+    assert len(ids) == 2 and 'href="built/sources/thumbs/index.html"' in (site / "index.html").read_text()
+    for case in ids:
+        png = page.parent / f"{case}.png"
+        assert png.read_bytes()[:4] == b"\x89PNG" and f'<a href="{case}.png"><img src="{case}.png"' in html
+    assert "lamp_distance=0.3" in html and _broken_refs(site) == []
