@@ -68,13 +68,19 @@ class Board:
     rows: list[Row]
 
 
+def slug(name: str) -> str:
+    """``name`` as a file name of the site: each run of characters other than letters, digits, ``.``, ``_``, ``-``
+    becomes ``_``."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name)
+
+
 def _sources(dirs: Sequence[str | os.PathLike]) -> list[Source]:
     out, labels = [], set()
     for d in dirs:
         folder = Path(d)
         if not folder.is_dir():
             raise UserError(f"{folder}: not a folder (expected a folder of reports, results or scorecards)")
-        label = re.sub(r"[^A-Za-z0-9._-]+", "_", folder.resolve().name) or "root"
+        label = slug(folder.resolve().name) or "root"
         base, k = label, 2
         while label in labels:
             label, k = f"{base}-{k}", k + 1
@@ -227,7 +233,7 @@ def _made_by(file: Path) -> str:
 
 def suite_page(suite: str) -> str:
     """The site path of a suite's leaderboard."""
-    return f"suite-{re.sub(r'[^A-Za-z0-9._-]+', '_', suite)}.html"
+    return f"suite-{slug(suite)}.html"
 
 
 def check_site_out(out: str | os.PathLike, writes: Iterable[str]) -> set[str]:
