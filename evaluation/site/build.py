@@ -7,7 +7,9 @@ Layout of ``SITE/``::
     history.html, history/<k>.png    each metric per commit of the committed scorecards and baselines, and per
                                      run of several results folders of one sweep (:mod:`.history`)
     built/<label>/<path>/index.html  a built suite's cases as thumbnails, each opening its contact sheet
-                                     (``<id>.png``: ``nearlight show`` of the case's input capture)
+                                     (``<id>.png``: ``nearlight show`` of the case's input capture); a built
+                                     suite is a suite manifest beside a ``cases/`` folder (a manifest kept
+                                     alone, as ``reports/references/`` keeps one, is not)
     pages/<label>/<path>.html        each Markdown report of source folder <label>, at its own path
     data/<label>/<path>              the scorecards and every file a page links or shows, copied
     style.css, site.js               the site's own style and table sorting (no file is fetched at view time)
@@ -124,8 +126,8 @@ class Site:
                     self.markdown[file] = f"pages/{src.label}/{rel[:-3]}.html"
                 elif file.name == "scorecard.json":
                     self.cards.append((file, f"data/{src.label}/{rel}"))
-                elif file.name == "manifest.json" and _is_suite_manifest(file):
-                    self.built.append((file.parent, src))
+                elif file.name == "manifest.json" and (file.parent / "cases").is_dir() and _is_suite_manifest(file):
+                    self.built.append((file.parent, src))  # a manifest kept without its cases is no built suite
         self.history: list[Series] = self._history() if history else []
         if not self.markdown and not self.cards and not self.history and not self.built:
             raise UserError(f"{', '.join(str(s.folder) for s in self.sources)}: no scorecard.json and no Markdown report "
