@@ -95,11 +95,19 @@ QUOTES = [
     Quote("docs/global-sensitivity.md", "{} distinct tasks on {} closed-form renders",
           "global/screening/results.parquet", (Count(), Count(distinct="render_key"))),
     Quote("docs/global-sensitivity.md", "`sobol`: Saltelli, N = {} (",
-          "global/sobol/gsa/gsa.md", (r"Design: `sobol`, n = (\d+),",)),
-    Quote("docs/global-sensitivity.md", "N = 1024 ({} samples) for `full`",
+          "global/sobol/gsa/gsa.md", (r"Design: `sobol`, N = (\d+) \(",)),
+    Quote("docs/global-sensitivity.md", "replicates of n = 1024: {} samples for `full`",
           "global/sobol/gsa/outputs.csv", (Count({"method": "full"}),)),
-    Quote("docs/global-sensitivity.md", "for `full`: {} tasks, {} renders.",
-          "global/sobol/results.parquet", (Count(), Count(distinct="render_key"))),
+    Quote("docs/global-sensitivity.md", "the first replicate (seed 16) {} tasks on {} renders",
+          "global/sobol/seed-16/results.parquet", (Count(), Count(distinct="render_key"))),
+    Quote("docs/global-sensitivity.md", "the largest half-width of a total index of the lamp error in % is {} (the object's)",
+          "global/sobol/gsa/indices.csv", (Cell({**RANGE_NOISE, "input": "object"}, "ST_conf"),), "{:.3f}"),
+    Quote("docs/global-sensitivity.md", "the response curve's total index is {} [{}, {}] on the board and {} [{}, {}] on "
+          "the sphere", "global/sobol/gsa/levels.csv",
+          (*(Cell({**RANGE_NOISE, "input": "nuisances.camera.gamma", "level": "object=board"}, c)
+             for c in ("ST", "ST_lo", "ST_hi")),
+           *(Cell({**RANGE_NOISE, "input": "nuisances.camera.gamma", "level": "object=sphere"}, c)
+             for c in ("ST", "ST_lo", "ST_hi"))), "{:.2f}"),
     Quote("docs/global-sensitivity.md", "the object's shape ({} [{}, {}])", "global/sobol/gsa/indices.csv",
           tuple(Cell({**RANGE_NOISE, "input": "object"}, c) for c in ("ST", "ST_lo", "ST_hi")), "{:.2f}"),
     Quote("docs/global-sensitivity.md", "floor is {} for the lamp error in %", "global/sobol/gsa/indices.csv",
