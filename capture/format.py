@@ -35,6 +35,7 @@ from ..files.jsonable import json_text, jsonable
 from ..files.outputs import check_capture_out, is_capture_dir
 from ..files.schema import all_numbers, is_number
 from ..physics.reflectance import every_channel
+from .targets import ID_LAYER, OBJECT, RigTarget, read_object_id, read_objects, read_rig_targets
 
 #: The version the writer writes.
 FORMAT = "nearlight-capture/2"
@@ -206,6 +207,9 @@ class Rig:
     range : RangeSensor or None
         The range sensor's error (``rig.range``); None: not stated, and
         estimators then measure it from ``P``.
+    targets : tuple of RigTarget
+        The calibration targets in the scene as the rig knows them (``rig.targets``,
+        :mod:`nearlight.capture.targets`); empty: none.
     other : dict
         Every other key of ``rig`` (kept on a round trip).
     """
@@ -215,6 +219,7 @@ class Rig:
     lamp_polarizer_extinction_ratio: float | None = None
     lamp_filter: LampFilter | None = None
     range: RangeSensor | None = None
+    targets: tuple[RigTarget, ...] = ()
     other: dict[str, Any] = dataclasses.field(default_factory=dict)
 
 
@@ -252,6 +257,11 @@ class Capture:
     sensor : Sensor or None
         The camera's noise model (v2 ``sensor``), when known; estimators may
         read it to weigh pixels by their variance. None: unknown (and for v1).
+    object_id : ndarray of int32, shape (H, W), or None
+        Which object each pixel sees: 0 nothing, ``i + 1`` ``objects[i]``
+        (:mod:`nearlight.capture.targets`); None: every surface pixel is the object's.
+    objects : tuple of str
+        The names of the ids (``"object"``, ``"targets.<k>"``, ``"lamp"``...); empty without ``object_id``.
     extra : dict of str to ndarray
         Every other EXR layer: ``[H, W, 3]`` for three-channel layers
         (``truth_specular``, ``S0``...), ``[H, W]`` for single channels
@@ -275,6 +285,8 @@ class Capture:
     truth: dict | None = None
     rig: Rig = dataclasses.field(default_factory=Rig)
     sensor: Sensor | None = None
+    object_id: np.ndarray | None = None
+    objects: tuple[str, ...] = ()
     extra: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
     meta: dict[str, Any] = dataclasses.field(default_factory=dict)
     source: Path | None = None
@@ -283,6 +295,39 @@ class Capture:
     def surface_mask(self) -> np.ndarray:
         """``[H, W]`` bool: pixels that see a surface (finite ``P``)."""
         return every_channel(np.isfinite(self.P))
+
+    @property
+    def object_mask(self) -> np.ndarray:
+        """``[H, W]`` bool: pixels that see the object under study (the surface mask when the capture has no
+        ``object_id``)."""
+        if self.object_id is None:
+            return self.surface_mask
+        return self.object_id == self.objects.index(OBJECT) + 1
+
+    def of_object(self) -> Capture:
+        """The capture as an estimator of the object sees it: pixels of anything else (a calibration target, a
+        lamp seen directly) have no range (``P``, ``N`` NaN) and no radiance (0), as the background has none, so
+        no method fits them. The capture itself when it has no ``object_id``.
+
+        Why 0 and not NaN: the estimators' image statistics (the noise level, the separation) are written for
+        finite images, and a pixel without range is never fitted; where such pixels are enclosed by the object
+        the range-hole filling (:func:`nearlight.estimator.geometry.enclosed_holes`) gives them a surface point
+        with no light, which no fit reads as a measurement (measured on the TS board with two mirror balls and a
+        card: ``full``'s lamp moved by < 1e-6 m against the render without them when their pixels are cut; NaN
+        radiance moved it by 3 cm).
+        """
+        if self.object_id is None:
+            return self
+        other = (self.object_id != 0) & ~self.object_mask
+        if not other.any():
+            return self
+
+        def cut(img: np.ndarray | None, value: float) -> np.ndarray | None:
+            return None if img is None else np.where(other[..., None], np.float32(value), img)
+
+        return self.replace(P=cut(self.P, np.nan), N=cut(self.N, np.nan), specular=cut(self.specular, 0.0),
+                            diffuse=cut(self.diffuse, 0.0),
+                            stack=None if self.stack is None else np.stack([cut(img, 0.0) for img in self.stack]))
 
     @property
     def name(self) -> str:
@@ -362,10 +407,11 @@ def read_capture(path: str | os.PathLike) -> Capture:
     axis = take("lamp_polarizer_axis")
     axis = None if axis is None else _vector(axis, json_path, "lamp_polarizer_axis", (3,))
     truth = take("truth")
-    rig, sensor = Rig(), None
+    rig, sensor, objects = Rig(), None, ()
     if v2:
         rig = _rig(take("rig"), json_path)
         sensor = _sensor(take("sensor"), json_path)
+        objects = read_objects(take("objects"), json_path)
         _check_truth_v2(truth, json_path, rig)
 
     if not exr_path.is_file():
@@ -404,6 +450,11 @@ def read_capture(path: str | os.PathLike) -> Capture:
     if stack is None and specular is None:
         raise UserError(f"{exr_path}: no image: expected pol<k>.R/G/B channels or specular.R/G/B")
 
+    ids = layers.pop(ID_LAYER, None)
+    if ids is not None and set(ids) != {""}:
+        raise UserError(f"{exr_path}: layer {ID_LAYER}: expected one channel named {ID_LAYER}, got "
+                        f"{', '.join(f'{ID_LAYER}.{c}' for c in ids)}")  # fmt: skip
+    object_id = read_object_id(None if ids is None else ids[""], objects, exr_path)
     mask = every_channel(np.isfinite(P))
     if not mask.any():
         raise UserError(f"{exr_path}: channel P.X: no finite position (no surface in the range image)")
@@ -442,6 +493,8 @@ def read_capture(path: str | os.PathLike) -> Capture:
         truth=truth,
         rig=rig,
         sensor=sensor,
+        object_id=object_id,
+        objects=objects,
         extra=extra,
         meta=meta,
         source=folder,
@@ -554,6 +607,7 @@ def _rig(x: Any, where: Path) -> Rig:
         ),
         lamp_filter=_lamp_filter(other.pop("lamp_filter", None), where),
         range=_range_sensor(other.pop("range", None), where),
+        targets=read_rig_targets(other.pop("targets", None), where),
         other=other,
     )
 
@@ -801,8 +855,12 @@ def capture_json(capture: Capture) -> dict[str, Any]:
     if rig.range is not None:
         doc["rig"]["range"] = {"sigma_m": float(rig.range.sigma_m), "quantum_m": float(rig.range.quantum_m),
                                "axis": str(rig.range.axis), "source": str(rig.range.source)}  # fmt: skip
+    if rig.targets:
+        doc["rig"]["targets"] = [t.to_json() for t in rig.targets]
     for key, value in rig.other.items():
         doc["rig"].setdefault(key, jsonable(value))
+    if capture.objects:
+        doc["objects"] = list(capture.objects)
     if capture.sensor is not None:
         sensor = capture.sensor
         doc["sensor"] = {"saturation": float(sensor.saturation), "full_well": float(sensor.full_well),
@@ -820,6 +878,8 @@ def _channels(capture: Capture) -> dict[str, np.ndarray]:
     if capture.stack is not None:
         layers.update({f"pol{k}": img for k, img in enumerate(capture.stack)})
     layers.update(specular=capture.specular, diffuse=capture.diffuse)
+    if capture.object_id is not None:
+        layers[ID_LAYER] = capture.object_id
     layers.update(capture.extra)
     out: dict[str, np.ndarray] = {}
     shape = (capture.height, capture.width)

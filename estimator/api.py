@@ -29,6 +29,9 @@ METHODS: dict[str, Callable[..., Estimate]] = {
     "full": full_estimate,
     "distant": distant_estimate,
 }
+#: A method function with this attribute true sees a capture's calibration targets (every pixel); every other
+#: method sees the object's pixels only (:meth:`~nearlight.capture.Capture.of_object`).
+USES_TARGETS = "uses_targets"
 #: Methods of an extra, by name: (extra, ``module:function``), imported only when asked for.
 EXTRA_METHODS = {"render-compare": ("render", "nearlight.rendercompare.method:render_compare_estimate")}
 
@@ -130,6 +133,8 @@ def answer_and_verdict(capture: Capture | str | os.PathLike, *, method: str = "p
     options = check_options(fn, options, method=method)
     if isinstance(capture, (str, os.PathLike, Path)):
         capture = read_capture(capture)
+    if not getattr(fn, USES_TARGETS, False):  # the object's pixels only (a capture that says which pixel is which)
+        capture = capture.of_object()
     with shared_observations():  # the rules read the observation the method made
         clock = time.perf_counter()
         answer = _run(fn, capture, method, options)

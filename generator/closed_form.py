@@ -86,6 +86,11 @@ def not_covered(scene: Scene) -> list[str]:
         why.append("material.model mitsuba: a Mitsuba BSDF (no closed form)")
     if scene.capture.max_depth > 2 and scene.object.type not in CONVEX:
         why.append(f"capture.max_depth {scene.capture.max_depth}: interreflections of a concave object (Monte Carlo)")
+    if scene.targets:
+        why.append("targets: calibration targets (their shadows and images are Mitsuba's)")
+    for i, lamp in enumerate(scene.lamps):
+        if lamp.intersectable:
+            why.append(f"{lamp_name(i, len(scene.lamps))}.intersectable: a lamp rays can hit (Mitsuba's)")
     return why
 
 
@@ -251,21 +256,32 @@ def _across(d: np.ndarray) -> np.ndarray:
     return _unit(np.cross(d, np.where(np.abs(d[..., :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])))
 
 
-def fresnel_amplitudes(cos_i: np.ndarray, eta: float) -> tuple[np.ndarray, np.ndarray]:
-    """A dielectric's amplitude reflection coefficients, in the frames where a mirror has ``rs = rp = 1``.
+def fresnel_amplitudes(cos_i: np.ndarray, eta: float | complex) -> tuple[np.ndarray, np.ndarray]:
+    """A dielectric's or a conductor's amplitude reflection coefficients, in the frames where a mirror has
+    ``rs = rp = 1``.
 
     ``rs = (η cos θt − cos θi)/(cos θi + η cos θt)``, ``rp = (η cos θi − cos θt)/(η cos θi + cos θt)``: both
     ``(η − 1)/(η + 1)`` at normal incidence, ``rp = 0`` at Brewster's angle and negative beyond it (Born & Wolf's
-    coefficients, with ``rs``'s sign turned so that the p frame is the mirror image of the incident one).
+    coefficients, with ``rs``'s sign turned so that the p frame is the mirror image of the incident one). A
+    conductor's complex index ``η = n + iκ`` gives complex coefficients (``cos θt`` the principal root, the
+    transmitted wave decaying): ``|rs|² = |rp|² = ((n − 1)² + κ²)/((n + 1)² + κ²)`` at normal incidence, both
+    tending to 1 as ``κ → ∞`` (the ideal mirror).
 
     Parameters
     ----------
     cos_i : ndarray
         Cosine of the angle of incidence on the microfacet, in [0, 1].
-    eta : float
-        Relative index (> 1: no total internal reflection).
+    eta : float or complex
+        Relative index: real (> 1: no total internal reflection) for a dielectric, ``n + iκ`` (κ ≥ 0) for a
+        conductor.
+
+    Returns
+    -------
+    rs, rp : ndarray, shape of ``cos_i``
+        Real for a real ``eta``, complex for a complex one.
     """
-    cos_t = np.sqrt(np.maximum(1.0 - (1.0 - cos_i * cos_i) / (eta * eta), 0.0))
+    sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
+    cos_t = np.sqrt(1.0 - sin2_t) if np.iscomplexobj(sin2_t) else np.sqrt(np.maximum(1.0 - sin2_t, 0.0))
     rs = (eta * cos_t - cos_i) / (cos_i + eta * cos_t)
     rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
     return rs, rp

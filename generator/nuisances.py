@@ -36,7 +36,10 @@ Order, as light and data go through a rig
    positions in ``truth_P``; with noise or quantisation, ``rig.range`` states
    both (along the ray, source ``renderer``);
 7. calibration (``nuisances.calibration``): the capture's ``camera`` becomes
-   the true one moved by the given amounts; ``truth.camera`` keeps the true one.
+   the true one moved by the given amounts; ``truth.camera`` keeps the true one;
+8. the calibration targets' centres (``rig.targets``), each moved by a draw of
+   its stated error (:func:`nearlight.generator.targets.calibrated`, its own
+   stream: child 3 of the seed's sequence); ``truth.targets`` keeps the true ones.
 
 Draws: the standard normals ``z`` (jitter) then ``f`` (flicker), ``K`` each
 (the number of analyzer angles), come from :func:`nuisance_rng` ``(seed)``,
@@ -63,6 +66,7 @@ from ..physics.polarization import analyzer_stack, linear_stokes
 from .noise import RECORDED, add_camera_noise, add_range_noise, with_range_sensor
 from .realism import expand
 from .scene import NoiseSpec, Nuisances, Scene, euler_rotation
+from .targets import calibrated
 
 
 def nuisance_rng(seed: int) -> np.random.Generator:
@@ -142,13 +146,26 @@ def through_rig(
     if range_noise > 0 or nz.range.quantum_m > 0:  # what the rig states of its range sensor (rig.range)
         cap = with_range_sensor(cap, sigma_m=range_noise, quantum_m=nz.range.quantum_m, axis="ray", source="renderer")
     cap = _calibration(cap, nz)
-    if nuisances is None and realism == "none":
+    cap, offsets = _target_calibration(cap, seed)
+    if offsets is not None:
+        record["targets"] = {"centre_offsets_m": offsets}
+    if nuisances is None and realism == "none" and offsets is None:
         return cap
     truth = None if cap.truth is None else {**cap.truth, "nuisances": record}
     return cap.replace(truth=truth)
 
 
 # --------------------------------------------------------------------------- the steps
+
+
+def _target_calibration(capture: Capture, seed: int) -> tuple[Capture, list[list[float]] | None]:
+    """``rig.targets`` as the lab calibrated them for this capture (:func:`~nearlight.generator.targets.calibrated`),
+    when a target states an error; the offsets drawn (None: nothing drawn)."""
+    targets = capture.rig.targets
+    if not any(t.centre_error_m > 0 for t in targets):
+        return capture, None
+    moved, offsets = calibrated(targets, seed)
+    return capture.replace(rig=dataclasses.replace(capture.rig, targets=moved)), offsets
 
 
 def _stokes(capture: Capture) -> np.ndarray:

@@ -55,11 +55,13 @@ from ..files.atomic import atomic_write
 from ..files.digests import file_sha256
 from ..physics.polarization import analyzer_stack, filter_axes
 from .scene import LAMP_V1_KEYS, LampSpec, MitsubaMaterial, Scene, lamp_name, placement
+from .targets import BLACK, lamp_shape_name, needs_ids, object_names, rig_targets, shape_objects, target_shapes
+from .targets import target_truth
 
 #: Bump when a change alters rendered values (invalidates caches).
 RENDER_VERSION = 1
-#: Render passes: which lobes are on.
-PARTS = ("specular", "diffuse", "full")
+#: Render passes: which lobes are on (``others``: the object black, the targets and a lamp seen directly lit).
+PARTS = ("specular", "diffuse", "full", "others")
 
 
 # --------------------------------------------------------------------------- scene dicts
@@ -103,6 +105,8 @@ def bsdf_dict(scene: Scene, *, part: str, channel: int | None) -> dict:
     ``channel`` None means unit ``ks``/``kd`` (the linear, direct-light case).
     """
     mat = scene.material
+    if part == "others":
+        return BLACK
     if isinstance(mat, MitsubaMaterial):
         return _per_channel(mat.bsdf, channel)
     unit = channel is None
@@ -140,7 +144,9 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
 
     Parameters
     ----------
-    part : {"specular", "diffuse", "full"}
+    part : {"specular", "diffuse", "full", "others"}
+        The object's lobes on (``others``: none); the targets are lit in ``full`` and ``others`` only, black
+        (blocking light, adding none) in the others.
     channel : int or None
         Colour channel (0, 1, 2) or None for unit reflectances and intensity.
     lamp_route : {"emitter", "sheet"}
@@ -166,12 +172,18 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
             lamps[name] = lamp.polarized_lamp(spec.position, intensity, spec.polarizer_axis, facing,
                                               extinction_ratio=spec.polarizer_extinction_ratio,
                                               anisotropy_k=spec.anisotropy_k, anisotropy_axis=spec.anisotropy_axis,
-                                              radius=spec.radius)  # fmt: skip
+                                              radius=spec.radius, intersectable=spec.intersectable)  # fmt: skip
         else:
             if not scene.is_v1_lamp(spec):
                 raise ValueError("the polarizer-sheet route renders only an ideal isotropic point lamp")
             sheet = lamp.polarizer_sheet(mi, spec.position, intensity, spec.polarizer_axis, facing)
             lamps.update({name + k.removeprefix("lamp"): v for k, v in sheet.items()})
+    for i, spec in enumerate(scene.lamps):  # an unlit lamp a ray can hit is still there, dark
+        if spec.intersectable and i not in lit:
+            lamps[lamp_shape_name(i)] = {"type": "sphere", "center": list(spec.position), "radius": spec.radius,
+                                         "bsdf": BLACK}  # fmt: skip
+    targets = {k: {**v, "to_world": _transform(mi, v["to_world"])} if "to_world" in v else v
+               for k, v in target_shapes(scene, lit=part in ("full", "others")).items()}  # fmt: skip
     kind = "path" if lamp_route == "emitter" else "volpath"
     integrator = {"type": kind, "max_depth": scene.capture.max_depth}
     if stokes:
@@ -181,6 +193,7 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
         "integrator": integrator,
         "sensor": sensor_dict(mi, scene),
         **object_dicts(mi, scene, bsdf_dict(scene, part=part, channel=channel), scratch),
+        **targets,
         **lamps,
     }
 
@@ -305,6 +318,28 @@ def surface(mi: ModuleType, mscene: Any) -> tuple[np.ndarray, np.ndarray]:
     return P, N
 
 
+def object_ids(mi: ModuleType, mscene: Any, names: dict[str, str], objects: Sequence[str]) -> np.ndarray:
+    """``[H, W]`` int32: which object each pixel-centre ray hits first (0: none, ``i + 1``: ``objects[i]``).
+
+    ``names`` maps every Mitsuba shape id to the name in ``objects`` of what it belongs to.
+    """
+    from .llvm import is_scalar
+
+    sensor = mscene.sensors()[0]
+    w, h = sensor.film().size()
+    ids = np.zeros(h * w, np.int32)
+    if is_scalar(mi):
+        shapes = [mscene.ray_intersect(ray).shape for ray in _scalar_rays(mi, sensor)]
+        for shape in mscene.shapes():
+            hit = np.array([bool(s == mi.ShapePtr(shape)) if s is not None else False for s in shapes])
+            ids[hit] = objects.index(names[shape.id()]) + 1
+    else:
+        si = mscene.ray_intersect(sensor_rays(mi, sensor))
+        for shape in mscene.shapes():
+            ids[np.asarray(si.shape == mi.ShapePtr(shape), dtype=bool)] = objects.index(names[shape.id()]) + 1
+    return ids.reshape(h, w)
+
+
 def lamp_inside(mi: ModuleType, mscene: Any, position: Any) -> bool:
     """Whether ``position`` is inside a closed object: an odd number of surface crossings along each of 3 rays.
 
@@ -346,6 +381,8 @@ def render_key(scene: Scene) -> str:
         "spp": cap["spp"],
         "max_depth": cap["max_depth"],
     }
+    if scene.targets:  # a scene without targets keeps its key from before targets existed
+        relevant["targets"] = doc["targets"]
     if scene.object.type == "mesh":
         relevant["mesh_sha256"] = file_sha256(scene.object.file)
     return hashlib.sha256(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:24]
@@ -479,12 +516,15 @@ def _cache_entry_ok(arrays: dict[str, np.ndarray], scene: Scene) -> bool:
     """Whether a cached render has every array :func:`assemble` needs, with this scene's shapes."""
     hw = (scene.camera.height, scene.camera.width)
     want = {"P": (*hw, 3), "N": (*hw, 3), "to_world": (4, 4), "stokes_full": (3, *hw, 3)}
+    if needs_ids(scene):
+        want["object_id"] = hw
     for part in ("specular", "diffuse"):
         if f"stokes_{part}" in arrays:
             want[f"stokes_{part}"] = (3, *hw, 3)
             if len(scene.lamps) > 1:  # every lamp's own part too
                 want.update({f"stokes_{part}_lamp{i}": (3, *hw, 3) for i in range(len(scene.lamps))})
-    return all(k in arrays and arrays[k].shape == shape and arrays[k].dtype.kind == "f" for k, shape in want.items())
+    return all(k in arrays and arrays[k].shape == shape and arrays[k].dtype.kind == ("i" if k == "object_id" else "f")
+               for k, shape in want.items())  # fmt: skip
 
 
 def _save_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -568,6 +608,11 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
     lamps; one lamp per pass keeps a point lamp's direct light exact, where Mitsuba would pick one emitter per
     sample). With several lamps, every lamp's own specular and diffuse parts are kept too
     (``stokes_<part>_lamp<i>``); a one-lamp scene renders exactly as before lamps were a list.
+
+    With calibration targets or a lamp rays can hit (:func:`~nearlight.generator.targets.needs_ids`), the
+    arrays also hold ``object_id`` (:func:`object_ids`); the specular and diffuse parts are the object's alone
+    (zero at every other pixel: a lamp seen directly is in every pass), and with direct light only the light of
+    everything else is the ``others`` pass (the object black), added to the full image.
     """
     from tqdm import tqdm
 
@@ -578,10 +623,11 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
     analytic = not isinstance(scene.material, MitsubaMaterial)
     linear = analytic and scene.capture.max_depth == 2
     several = len(scene.lamps) > 1
+    ids = needs_ids(scene)
     passes = []
     for i in range(len(scene.lamps)):
         if linear:  # unit renders, scaled per channel below
-            passes += [(p, None, i) for p in ("specular", "diffuse")]
+            passes += [(p, None, i) for p in ("specular", "diffuse", *(("others",) if ids else ()))]
         else:
             passes += [(p, c, i) for c in range(3) for p in (("specular", "diffuse", "full") if analytic else ("full",))]
     _remove_stale_scratch()
@@ -595,14 +641,17 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
             mscene = _load_scene(mi, scene, doc)
             if n == 0:  # every pass has the same geometry: check it before any rendering
                 P, N = surface(mi, mscene)
-                _check_geometry(mi, scene, mscene, P)
+                id_image = _object_ids(mi, scene, mscene, Path(scratch)) if ids else None
+                _check_geometry(mi, scene, mscene, P, id_image, Path(scratch))
                 to_world = np.asarray(mscene.sensors()[0].world_transform().matrix, float).reshape(4, 4)
             s = trace_stokes(mi, mscene, spp=traced_spp(scene, i), tick=bar.update)
+            if id_image is not None and part in ("specular", "diffuse"):  # the object's own light only
+                s = np.where(id_image == 1, s, 0.0)
             keys = [f"{part}_lamp{i}", part] if several else [part]
             if channel is None:
-                scale = np.asarray(scene.lamps[i].intensity) * np.asarray(
+                scale = np.asarray(scene.lamps[i].intensity) * (1.0 if part == "others" else np.asarray(
                     scene.material.specular if part == "specular" else scene.material.kd
-                )
+                ))
                 value = s[..., None] * scale
                 for key in keys:  # the first lamp's value as is (bit for bit the one-lamp render), then sums
                     stokes[key] = value if key not in stokes else stokes[key] + value
@@ -617,19 +666,40 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
                         stokes[key][..., channel] = s
     if linear:
         stokes["full"] = stokes["specular"] + stokes["diffuse"]
+        if ids:
+            stokes["full"] = stokes["full"] + stokes["others"]
     out = {"P": P, "N": N, "to_world": to_world}
-    out.update({f"stokes_{k}": v.astype(np.float32) for k, v in stokes.items() if not k.startswith("full_")})
+    if id_image is not None:
+        out["object_id"] = id_image
+    out.update({f"stokes_{k}": v.astype(np.float32) for k, v in stokes.items()
+                if not k.startswith(("full_", "others"))})  # fmt: skip
     return out
 
 
-def _check_geometry(mi: ModuleType, scene: Scene, geometry: Any, P: np.ndarray) -> None:
+def _object_ids(mi: ModuleType, scene: Scene, mscene: Any, scratch: Path) -> np.ndarray:
+    """:func:`object_ids` of a render pass's Mitsuba scene (the object's shapes named by their builder)."""
+    names = shape_objects(scene, list(object_dicts(mi, scene, BLACK, scratch)))
+    return object_ids(mi, mscene, names, object_names(scene))
+
+
+def _check_geometry(mi: ModuleType, scene: Scene, geometry: Any, P: np.ndarray, ids: np.ndarray | None,
+                    scratch: Path) -> None:  # fmt: skip
+    """Refuse a camera that sees no part of the object, a lamp inside the object, a sphere lamp reaching it.
+
+    ``ids``: :func:`object_ids` when the scene has other objects (targets, a lamp rays can hit): the object's
+    pixels are those with id 1, and the lamp's inside is tested against the object's shapes alone.
+    """
     from .shapes import CLOSED
 
+    if ids is not None:
+        P = np.where((ids == 1)[..., None], P, np.nan)
     if not np.isfinite(P).all(axis=-1).any():
         raise UserError(
             f"{scene.source}: camera: sees no part of the object (check camera.position/look_at/fov_x_deg "
             f"and object.position)"
         )
+    if ids is not None and scene.object.type in CLOSED:
+        geometry = _load_scene(mi, scene, {"type": "scene", **object_dicts(mi, scene, BLACK, scratch)})
     for i, spec in enumerate(scene.lamps):
         name = lamp_name(i, len(scene.lamps))
         if scene.object.type in CLOSED and lamp_inside(mi, geometry, spec.position):
@@ -679,7 +749,9 @@ def truth_of(scene: Scene) -> dict[str, Any]:
     then fails loudly instead of grading against one of them)."""
     one = len(scene.lamps) == 1
     v1 = {"lamp_position": list(scene.lamp.position), "lamp_intensity": list(scene.lamp.intensity)} if one else {}
-    return {**v1, "bsdf": scene.material.truth(), "lamps": [lamp_truth(scene, i) for i in range(len(scene.lamps))]}
+    targets = {"targets": target_truth(scene)} if scene.targets else {}
+    return {**v1, "bsdf": scene.material.truth(), "lamps": [lamp_truth(scene, i) for i in range(len(scene.lamps))],
+            **targets}  # fmt: skip
 
 
 def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Capture:
@@ -711,7 +783,9 @@ def assemble(scene: Scene, arrays: dict[str, np.ndarray], *, key: str) -> Captur
         lamp_polarizer_axis=filter_axes(scene.lamp.polarizer_axis, scene.lamp_facing)[0] if one else None,
         truth=truth_of(scene),
         rig=Rig(lamps=len(scene.lamps), lamp_polarizer_extinction_ratio=scene.lamps[0].polarizer_extinction_ratio,
-                lamp_filter=None if one else shared_lamp_filter(scene)),
+                lamp_filter=None if one else shared_lamp_filter(scene), targets=rig_targets(scene)),
+        object_id=arrays.get("object_id"),
+        objects=object_names(scene) if "object_id" in arrays else (),
         extra=extra,
         meta={
             "generator": {

@@ -1,7 +1,9 @@
 """Scene files: what to render, validated (pydantic v2), with ``--set`` overrides.
 
 A scene has five sections: ``camera``, ``object``, ``material``, ``lamp`` and
-``capture``, and two optional keys for rig imperfections, off by default:
+``capture``, an optional list of calibration ``targets`` beside the object
+(mirror spheres, matte cards: :mod:`nearlight.generator.targets`), and two
+optional keys for rig imperfections, off by default:
 ``nuisances`` (applied after rendering, per seed) and ``realism`` (a named
 profile of nuisance values, :mod:`nearlight.generator.realism`). Positions are
 in metres, angles in degrees (the file is what a human types); colours are
@@ -190,6 +192,42 @@ class Mesh(_Placed):
 ObjectSpec = Annotated[Union[Board, Sphere, Cylinder, Bookend, Torus, Mesh], Field(discriminator="type")]
 
 
+class _Target(_Model):
+    """What every calibration target has: where it is, and how well the lab knows where it is.
+
+    ``calibration_error_m`` is the lab's stated 1σ error, per axis, of the target's calibrated centre (metres): a
+    capture's ``rig`` records the true centre moved by a draw of that error (one draw per capture seed, a bias
+    the capture cannot average away) and the stated σ; 0 is a perfectly calibrated target.
+    """
+
+    position: Vec3
+    calibration_error_m: Annotated[float, Field(ge=0, le=0.1)] = 0.0
+
+
+class MirrorSphere(_Target):
+    """A polished metal ball of ``radius`` metres centred on ``position``: a conductor of complex index
+    ``eta + i k`` (defaults: chrome near 550 nm, Johnson & Christy 1974; reflectance 0.55 at normal incidence)."""
+
+    type: Literal["mirror_sphere"]
+    radius: PositiveFloat = 0.025
+    eta: PositiveFloat = 3.1
+    k: Annotated[float, Field(ge=0)] = 3.3
+
+
+class MatteCard(_Target, _Placed):
+    """A flat Lambertian card ``size = [width, height]`` metres of reflectance ``albedo`` (grey), centred on
+    ``position`` and placed as an object is (``rotation_deg``, then its local +z turned onto ``normal``)."""
+
+    type: Literal["matte_card"]
+    size: tuple[PositiveFloat, PositiveFloat] = (0.1, 0.1)
+    albedo: Annotated[float, Field(ge=0, le=1)] = 0.8
+
+
+TargetSpec = Annotated[Union[MirrorSphere, MatteCard], Field(discriminator="type")]
+#: Most calibration targets a scene may have.
+MAX_TARGETS = 8
+
+
 class Texture(_Model):
     """A checker in the object's placed frame (:mod:`nearlight.physics.texture`): albedo ``kd·(1 + kd_contrast·s)``
     and roughness ``·(1 + roughness_contrast·s)``, ``s = ±1`` per cell of side ``period_m``."""
@@ -284,6 +322,8 @@ class LampSpec(_Model):
     (``anisotropy_k`` 0: isotropic; axis None: towards ``object.position``), a
     sphere of ``radius`` metres with the same intensity (0: a point), sampled
     ``samples`` times per pixel sample (Monte Carlo; ignored for a point).
+    ``intersectable``: the sphere is also a shape rays can hit, so a mirror
+    (and the camera) sees the lamp's image (:mod:`nearlight.generator.lamp`).
     """
 
     position: Vec3
@@ -294,6 +334,14 @@ class LampSpec(_Model):
     anisotropy_axis: Vec3 | None = None
     radius: Annotated[float, Field(ge=0, le=0.5)] = 0.0
     samples: Annotated[int, Field(ge=1, le=4096)] = 16
+    intersectable: bool = False
+
+    @field_validator("intersectable")
+    @classmethod
+    def _intersectable(cls, v: bool, info: ValidationInfo) -> bool:
+        if v and info.data.get("radius") == 0:
+            raise ValueError("a lamp a ray can hit needs a radius > 0 (lamp.radius)")
+        return v
 
     @field_validator("polarizer_axis")
     @classmethod
@@ -437,6 +485,7 @@ class Scene(_Model):
     material: MaterialSpec
     lamps: Annotated[tuple[LampSpec, ...], Field(min_length=1, max_length=MAX_SCENE_LAMPS)]
     capture: CaptureSpec = Field(default_factory=CaptureSpec)
+    targets: Annotated[tuple[TargetSpec, ...], Field(max_length=MAX_TARGETS)] = ()
     realism: Literal["none", "lab", "bench", "rough"] = "none"
     nuisances: Nuisances = Field(default_factory=Nuisances)
     _source: str = PrivateAttr(default="<scene>")
@@ -465,6 +514,12 @@ class Scene(_Model):
                     f"{name}.polarizer_axis: points from the lamp at the object; the filter faces the object, "
                     "so its axis must lie across that direction"
                 )
+            for k, target in enumerate(self.targets):
+                if isinstance(target, MirrorSphere):
+                    gap = float(np.linalg.norm(np.subtract(lamp.position, target.position)))
+                    if gap <= target.radius + lamp.radius:
+                        raise ValueError(f"targets.{k}: the mirror sphere reaches {name} ({gap:.4g} m between their "
+                                         f"centres, radii {target.radius} and {lamp.radius} m)")
             if lamp.polarizer_extinction_ratio != self.lamps[0].polarizer_extinction_ratio:
                 raise ValueError(
                     f"{name}.polarizer_extinction_ratio: every lamp's filter must have the same extinction ratio "
@@ -478,6 +533,8 @@ class Scene(_Model):
         """``lamps`` dumped as ``lamp`` (a mapping) for one lamp, in its place: a one-lamp scene's dump is what it
         was before several lamps existed (capture.json's ``generator.scene``, render keys, sweeps)."""
         doc = handler(self)
+        if not self.targets:  # a scene without targets dumps as it did before targets existed
+            doc.pop("targets", None)
         if len(self.lamps) != 1:
             return doc
         return {("lamp" if k == "lamps" else k): (v[0] if k == "lamps" else v) for k, v in doc.items()}
@@ -532,7 +589,7 @@ class Scene(_Model):
 
 
 _TAGS = {"board", "sphere", "cylinder", "bookend", "torus", "mesh", "torrance_sparrow", "ward", "ggx", "beckmann",
-         "mitsuba"}
+         "mitsuba", "mirror_sphere", "matte_card"}
 
 
 def load_scene(
@@ -636,7 +693,8 @@ def _describe(exc: ValidationError, *, single_lamp: bool = False) -> str:
     err = errors[0]
     loc: list[str] = []
     for i, part in enumerate(err["loc"]):
-        if i > 0 and part in _TAGS and err["loc"][i - 1] in ("object", "material"):
+        if i > 0 and part in _TAGS and (err["loc"][i - 1] in ("object", "material")
+                                        or (i > 1 and err["loc"][i - 2] == "targets")):
             continue  # the discriminated-union tag pydantic inserts
         loc.append(str(part))
     if single_lamp and loc[:2] == ["lamps", "0"]:
