@@ -138,6 +138,15 @@ SCENE_BREAKS: dict[str, list[Any]] = {
     "nuisances.calibration.position_m": [[0, 0], [1, 0, 0]],
     "nuisances.calibration.rotation_deg": [[0, 0, 0, 0], [90, 0, 0]],
     "nuisances.bogus.key": [1],
+    # calibration targets (issue 39)
+    "targets": ["balls", [{"type": "cube", "position": [0, 0, 0]}], [{"type": "mirror_sphere"}],
+                [{"type": "mirror_sphere", "position": [0.2, 0, 0.05], "radius": 0}],
+                [{"type": "mirror_sphere", "position": [0.1, 0.25, 0.44]}],
+                [{"type": "matte_card", "position": [0, 0, 0.01], "size": [0.1]}],
+                [{"type": "matte_card", "position": [0, 0, 0.01], "albedo": -0.1}],
+                [{"type": "mirror_sphere", "position": [0.2, 0, 0.05], "calibration_error_m": -0.001}],
+                [{"type": "mirror_sphere", "position": [0.2, 0, 0.05]}] * 9],
+    "lamp.intersectable": [True, "lit"],
 }
 
 
@@ -458,6 +467,15 @@ def _json_mutation_cases() -> None:
         "truth.camera": ["pinhole", {"position": [0, 1]}, {"position": [0, 0, 1], "fov_x_deg": 200},
                          {"position": [0, 0, 1], "to_world": [[1, 0], [0, 1]]}],  # fmt: skip
         "truth.nuisances": ["bench", [1]],
+        # object ids and calibration targets (issue 39): the capture has no object_id layer
+        "objects": [["object"], [], "object", ["targets.0"], ["object", "object"], [1]],
+        "rig.targets": ["balls", [5], [{"type": "cube"}], [{"type": "mirror_sphere", "name": "targets.0"}],
+                        [{"type": "mirror_sphere", "name": "targets.0", "centre": [0, 0, 0.1], "radius": -1}],
+                        [{"type": "matte_card", "name": "targets.0", "centre": [0, 0, 0.1], "normal": [0, 0, 0],
+                          "size": [0.1, 0.1]}],
+                        [{"type": "mirror_sphere", "name": "", "centre": [0, 0, 0.1], "radius": 0.02}],
+                        [{"type": "mirror_sphere", "name": "targets.0", "centre": [0, 0, 0.1], "radius": 0.02,
+                          "centre_error_m": "1mm"}]],
     }
     rng = random.Random(f"{SEED}-json")
     items = [(k, v) for k, vs in bad.items() for v in vs]
