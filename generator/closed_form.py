@@ -287,6 +287,28 @@ def fresnel_amplitudes(cos_i: np.ndarray, eta: float | complex) -> tuple[np.ndar
     return rs, rp
 
 
+def reflection_frames(k: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The s and p directions of light travelling along ``k`` onto a surface of normal ``n``, before and after
+    reflection: ``s = k × n`` (normalised), ``p = s × k`` and ``p'`` its mirror image, the frames in which a mirror
+    has ``rs = rp = 1`` (:func:`fresnel_amplitudes`).
+
+    Parameters
+    ----------
+    k, n : ndarray, shape (m, 3)
+        Unit propagation directions (towards the surface) and unit normals (a microfacet's ``h``).
+
+    Returns
+    -------
+    s, p_in, p_out : ndarray, shape (m, 3)
+    """
+    s = np.cross(k, n)
+    norm = np.linalg.norm(s, axis=-1, keepdims=True)
+    # normal incidence (retro-reflection): every direction is s; rs = rp there, so any choice gives the same field
+    s = np.where(norm > 1e-12, s / np.maximum(norm, 1e-300), _across(k))
+    p_in = np.cross(s, k)
+    return s, p_in, p_in - 2.0 * _dot(p_in, n)[..., None] * n
+
+
 def reflected_states(k: np.ndarray, v: np.ndarray, fields: list[tuple[np.ndarray, float]], *,
                      fresnel_eta: float | None) -> Iterator[tuple[np.ndarray, np.ndarray]]:  # fmt: skip
     """Each incident linear state reflected by the microfacet that sends ``k`` towards ``v``.
@@ -310,12 +332,7 @@ def reflected_states(k: np.ndarray, v: np.ndarray, fields: list[tuple[np.ndarray
         The state's weight.
     """
     h = _unit(v - k)
-    s = np.cross(k, h)
-    norm = np.linalg.norm(s, axis=-1, keepdims=True)
-    # retro-reflection (k = -v): every direction is s; rs = rp there, so any choice gives the same field
-    s = np.where(norm > 1e-12, s / np.maximum(norm, 1e-300), _across(k))
-    p_in = np.cross(s, k)
-    p_out = p_in - 2.0 * _dot(p_in, h)[..., None] * h
+    s, p_in, p_out = reflection_frames(k, h)
     if fresnel_eta is None:
         rs = rp = np.ones(k.shape[:-1])
     else:

@@ -205,18 +205,22 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
 MAX_WAVEFRONT = 1 << 21
 
 
-def sensor_rays(mi: ModuleType, sensor: Any, repeat: int = 1) -> Any:
-    """Rays through every pixel centre, row-major from the top-left pixel, the image ``repeat`` times over."""
+def sensor_rays(mi: ModuleType, sensor: Any, repeat: int = 1, offset: Any = None) -> Any:
+    """Rays through every pixel centre, row-major from the top-left pixel, the image ``repeat`` times over; with
+    ``offset`` (a ``mi.Point2f`` in [0, 1)², one per ray) through that point of each pixel instead."""
     import drjit as dr
 
     w, h = sensor.film().size()
     idx = dr.arange(mi.UInt32, w * h * repeat) % (w * h)
-    pos = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
+    if offset is None:
+        pos = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
+    else:
+        pos = mi.Point2f((mi.Float(idx % w) + offset.x) / w, (mi.Float(idx // w) + offset.y) / h)
     ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
     return ray
 
 
-def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=None) -> np.ndarray:
+def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=None, area: bool = False) -> np.ndarray:
     """Stokes S0, S1, S2 at every pixel centre, in the sensor frame.
 
     Parameters
@@ -230,6 +234,9 @@ def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=N
         Sampler seed.
     tick : callable, optional
         Called with the number of samples per pixel done, for progress bars.
+    area : bool
+        Each sample through a uniformly random point of its pixel (a camera's pixel integrating over its area:
+        a lamp's image smaller than a pixel on a mirror ball), not its centre.
 
     Returns
     -------
@@ -242,6 +249,9 @@ def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=N
 
     sensor = mscene.sensors()[0]
     if is_scalar(mi):
+        if area:
+            raise UserError("calibration targets and lamps rays can hit need Mitsuba's LLVM variant (its scalar "
+                            "fallback traces pixel centres only): install libLLVM (docs/physics.md)")
         return _trace_stokes_scalar(mi, mscene, spp=spp, seed=seed, tick=tick)
     w, h = sensor.film().size()
     integrator = mscene.integrator()
@@ -251,9 +261,9 @@ def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=N
     done = 0
     while done < spp:
         n = min(batch, spp - done)
-        ray = sensor_rays(mi, sensor, n)
         sampler = mi.load_dict({"type": "independent"})
         sampler.seed(seed + done, w * h * n)
+        ray = sensor_rays(mi, sensor, n, offset=sampler.next_2d() if area else None)
         spec, _, _ = integrator.sample(mscene, sampler, ray, None, True)
         # As Mitsuba's stokes integrator: rotate from the ray's implicit basis to the sensor's x axis.
         to_sensor = mi.mueller.rotate_stokes_basis(-ray.d, mi.mueller.stokes_basis(-ray.d), dr.cross(ray.d, vertical))
@@ -593,12 +603,19 @@ def _load_scene(mi: ModuleType, scene: Scene, doc: dict) -> Any:
         raise UserError(f"{scene.source}: object.file: Mitsuba cannot load {scene.object.file}: {reason}") from None
 
 
-def traced_spp(scene: Scene, lamp: int | None = None) -> int:
+#: Fewest samples per pixel of the ``others`` pass, each through a random point of its pixel: a boundary pixel of
+#: a lamp's image on a mirror ball is then within about ``√(p(1 − p)/64) ≤ 6 %`` of the lamp's radiance.
+OTHERS_SPP = 64
+
+
+def traced_spp(scene: Scene, lamp: int | None = None, part: str = "full") -> int:
     """Samples traced per pixel in one pass lighting lamp ``lamp`` (default: the one lamp of a one-lamp scene):
-    ``capture.spp``, times ``lamp.samples`` for a sphere lamp (``lamp.radius`` > 0)."""
+    ``capture.spp``, times ``lamp.samples`` for a sphere lamp (``lamp.radius`` > 0); at least
+    :data:`OTHERS_SPP` in the ``others`` pass (sampled over each pixel's area)."""
     spec = scene.lamp if lamp is None else scene.lamps[lamp]
     spp = scene.capture.spp
-    return spp * spec.samples if spec.radius > 0 else spp
+    spp = spp * spec.samples if spec.radius > 0 else spp
+    return max(spp, OTHERS_SPP) if part == "others" else spp
 
 
 def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
@@ -612,7 +629,12 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
     With calibration targets or a lamp rays can hit (:func:`~nearlight.generator.targets.needs_ids`), the
     arrays also hold ``object_id`` (:func:`object_ids`); the specular and diffuse parts are the object's alone
     (zero at every other pixel: a lamp seen directly is in every pass), and with direct light only the light of
-    everything else is the ``others`` pass (the object black), added to the full image.
+    everything else is the ``others`` pass (the object black), added to the full image. The ``others`` pass is
+    sampled over each pixel's area (at least :data:`OTHERS_SPP` samples), as a camera integrates: a lamp's image
+    on a mirror ball is often smaller than a pixel and would fall between pixel centres. So a pixel whose centre
+    sees the object holds the object's light at that point (its ``P``, ``N``), exactly as before targets existed,
+    and any other pixel the light of everything but the object over its area (a target's edge pixel is dimmer
+    by the fraction of it the object covers).
     """
     from tqdm import tqdm
 
@@ -629,9 +651,10 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
         if linear:  # unit renders, scaled per channel below
             passes += [(p, None, i) for p in ("specular", "diffuse", *(("others",) if ids else ()))]
         else:
-            passes += [(p, c, i) for c in range(3) for p in (("specular", "diffuse", "full") if analytic else ("full",))]
+            parts = ("specular", "diffuse", "full") if analytic else ("full",)
+            passes += [(p, c, i) for c in range(3) for p in (*parts, *(("others",) if ids else ()))]
     _remove_stale_scratch()
-    total = sum(traced_spp(scene, i) for _, _, i in passes)
+    total = sum(traced_spp(scene, i, p) for p, _, i in passes)
     with tempfile.TemporaryDirectory(prefix=f"{SCRATCH_PREFIX}{os.getpid()}-") as scratch, tqdm(
         total=total, desc=f"render ({len(passes)} passes)", unit="spp", disable=not progress, leave=False
     ) as bar:
@@ -644,9 +667,9 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
                 id_image = _object_ids(mi, scene, mscene, Path(scratch)) if ids else None
                 _check_geometry(mi, scene, mscene, P, id_image, Path(scratch))
                 to_world = np.asarray(mscene.sensors()[0].world_transform().matrix, float).reshape(4, 4)
-            s = trace_stokes(mi, mscene, spp=traced_spp(scene, i), tick=bar.update)
-            if id_image is not None and part in ("specular", "diffuse"):  # the object's own light only
-                s = np.where(id_image == 1, s, 0.0)
+            s = trace_stokes(mi, mscene, spp=traced_spp(scene, i, part), tick=bar.update, area=part == "others")
+            if id_image is not None and part != "full":  # a pixel's light is the object's where its centre sees it
+                s = np.where((id_image == 1) == (part != "others"), s, 0.0)
             keys = [f"{part}_lamp{i}", part] if several else [part]
             if channel is None:
                 scale = np.asarray(scene.lamps[i].intensity) * (1.0 if part == "others" else np.asarray(
@@ -668,6 +691,8 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
         stokes["full"] = stokes["specular"] + stokes["diffuse"]
         if ids:
             stokes["full"] = stokes["full"] + stokes["others"]
+    elif ids:  # the full pass traced pixel centres: every other pixel's light is the others pass's, over its area
+        stokes["full"] = np.where((id_image == 1)[..., None], stokes["full"], stokes["others"])
     out = {"P": P, "N": N, "to_world": to_world}
     if id_image is not None:
         out["object_id"] = id_image
@@ -691,20 +716,23 @@ def _check_geometry(mi: ModuleType, scene: Scene, geometry: Any, P: np.ndarray, 
     """
     from .shapes import CLOSED
 
-    if ids is not None:
-        P = np.where((ids == 1)[..., None], P, np.nan)
+    seen = "the object" if not scene.targets else "the object or its targets"
+    if ids is not None:  # a view of the targets alone is a calibration shot: the object's pixels may be none
+        P = np.where(((ids == 1) | (ids > 1) & (ids <= 1 + len(scene.targets)))[..., None], P, np.nan)
     if not np.isfinite(P).all(axis=-1).any():
         raise UserError(
-            f"{scene.source}: camera: sees no part of the object (check camera.position/look_at/fov_x_deg "
+            f"{scene.source}: camera: sees no part of {seen} (check camera.position/look_at/fov_x_deg "
             f"and object.position)"
         )
+    if ids is not None:
+        P = np.where((ids == 1)[..., None], P, np.nan)
     if ids is not None and scene.object.type in CLOSED:
         geometry = _load_scene(mi, scene, {"type": "scene", **object_dicts(mi, scene, BLACK, scratch)})
     for i, spec in enumerate(scene.lamps):
         name = lamp_name(i, len(scene.lamps))
         if scene.object.type in CLOSED and lamp_inside(mi, geometry, spec.position):
             raise UserError(f"{scene.source}: {name}.position: {list(spec.position)} is inside the object")
-        if spec.radius > 0:
+        if spec.radius > 0 and np.isfinite(P).any():
             gap = float(np.nanmin(np.linalg.norm(P - np.asarray(spec.position), axis=-1)))
             if gap <= spec.radius:
                 raise UserError(

@@ -206,12 +206,13 @@ class _Target(_Model):
 
 class MirrorSphere(_Target):
     """A polished metal ball of ``radius`` metres centred on ``position``: a conductor of complex index
-    ``eta + i k`` (defaults: chrome near 550 nm, Johnson & Christy 1974; reflectance 0.55 at normal incidence)."""
+    ``eta + i k`` (defaults: chrome at 558 nm, Mitsuba's own ``data/ior/Cr`` tables; reflectance 0.66 at normal
+    incidence)."""
 
     type: Literal["mirror_sphere"]
     radius: PositiveFloat = 0.025
-    eta: PositiveFloat = 3.1
-    k: Annotated[float, Field(ge=0)] = 3.3
+    eta: PositiveFloat = 3.18
+    k: Annotated[float, Field(ge=0)] = 4.41
 
 
 class MatteCard(_Target, _Placed):

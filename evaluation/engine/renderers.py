@@ -371,11 +371,18 @@ class AutoRenderer(MitsubaRenderer):
 
     name = "auto"
 
+    def __init__(self) -> None:
+        super().__init__()
+        self._covers: dict[str, bool] = {}
+
     def covers(self, scene: dict) -> bool:
-        """Whether the closed form renders ``scene``."""
+        """Whether the closed form renders ``scene`` (parsed once per scene: a sweep asks for each of its tasks)."""
         from ...generator.closed_form import not_covered
 
-        return not not_covered(self._scene(scene))
+        key = stable_hash(scene)
+        if key not in self._covers:
+            self._covers[key] = not not_covered(self._scene(scene))
+        return self._covers[key]
 
     def chosen(self, scene: dict) -> Renderer:
         """The renderer ``scene`` goes to."""

@@ -207,7 +207,11 @@ def run_sweep(
     render_errors: dict[str, str] = {}
     running = f"sweep {sweep.name} (methods {', '.join(m.label for m in sweep.methods)})"
     with executing(workers, scheduler, running=running) as executor:
-        cached = [t for t in todo if renderer.on_disk(t.scene)] if renderer.prerender and cache_dir else []
+        on_disk: dict[str, bool] = {}  # once per render (its tasks share it), not once per task
+        for t in todo if renderer.prerender and cache_dir else ():
+            if t.render_key not in on_disk:
+                on_disk[t.render_key] = renderer.on_disk(t.scene)
+        cached = [t for t in todo if on_disk.get(t.render_key, False)]
         keys = list(dict.fromkeys(t.render_key for t in cached))
         if keys:
             scenes = {t.render_key: t.scene for t in todo}

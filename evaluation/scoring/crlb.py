@@ -157,7 +157,7 @@ def specular_crlb(capture: Any, *, noise_var: np.ndarray, pixels: np.ndarray | N
     UserError
         A capture with several lamps: the bound is for one lamp's fit.
     """
-    mask = capture.surface_mask & np.all(np.isfinite(capture.N), axis=-1)
+    mask = capture.object_mask & np.all(np.isfinite(capture.N), axis=-1)
     if pixels is not None:
         mask &= pixels
     P, N = np.asarray(capture.P, float)[mask], np.asarray(capture.N, float)[mask]

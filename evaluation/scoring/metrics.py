@@ -591,7 +591,7 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
     sigma_true = truth_sigma(bsdf)
     ks_true = truth_ks(bsdf)
     observed = capture.extra.get("truth_specular")
-    mask = capture.surface_mask
+    mask = capture.object_mask  # the object's pixels (a capture with calibration targets has others)
     rendered = resynthesize(capture, estimate)
     rmse = (math.nan, math.nan) if observed is None else (specular_rmse(rendered, observed, mask),
                                                          specular_rmse_relative(rendered, observed, mask))

@@ -135,7 +135,7 @@ def range_crlb(capture: Any, *, noise_var: np.ndarray, range_sigma_m: float, axi
     if axis not in ("ray", "z"):
         raise ValueError(f"axis must be 'ray' or 'z', got {axis!r}")
     bsdf, lobe, lamp, colour, rough = truth_parameters(capture)
-    surface = capture.surface_mask
+    surface = capture.object_mask
     cam = np.asarray(capture.camera.position, float)
     found = surface_family(np.asarray(capture.P, float)[surface], cam)
     if found is None:
