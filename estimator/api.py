@@ -14,6 +14,8 @@ from ..capture import Capture, read_capture
 from ..errors import UserError, one_line, require_extra
 from .distant import distant_estimate
 from .full import full_estimate
+from .lambertian_plane import lambertian_plane_estimate
+from .mirror_spheres import mirror_spheres_estimate
 from .options import check_options
 from .first_stage import initial_estimate
 from .paper import paper_estimate
@@ -28,6 +30,8 @@ METHODS: dict[str, Callable[..., Estimate]] = {
     "paper-init": initial_estimate,
     "full": full_estimate,
     "distant": distant_estimate,
+    "lambertian-plane": lambertian_plane_estimate,
+    "mirror-spheres": mirror_spheres_estimate,
 }
 #: A method function with this attribute true sees a capture's calibration targets (every pixel); every other
 #: method sees the object's pixels only (:meth:`~nearlight.capture.Capture.of_object`).

@@ -73,6 +73,11 @@ Several-lamp estimates (``lamp_positions`` with more than one row) get the
 ``finite``, ``roughness-range``, ``determined``, ``reach`` and ``located`` rules, each lamp
 checked for ``finite`` and ``reach``; ``in-front`` and ``explains`` need the
 lamp each highlight pixel belongs to, which the estimate does not state.
+
+A method that states the lamp alone (``diagnostics["estimates"] == ["lamp"]``:
+``lambertian-plane``, ``mirror-spheres``) reads no highlight: it is held to
+``finite`` on its lamp and ``located`` (its distance from the camera) only
+(:data:`LAMP_ONLY`), and refuses itself what its own data do not support.
 """
 
 from __future__ import annotations
@@ -328,7 +333,8 @@ def _ks_only(est: Estimate, obs: Observation, region: np.ndarray, predicted: np.
                                "and σ kept")
 
 
-def _located(est: Estimate, obs: Observation) -> Failure | None:
+def _located(est: Estimate, origin: np.ndarray, what: str = "the highlight") -> Failure | None:
+    """``located``: the lamp's largest 1-σ uncertainty within :data:`LOCATED_MAX` × its distance from ``origin``."""
     if est.covariance is None:
         return None
     pos = est.covariance[:3, :3]
@@ -338,10 +344,10 @@ def _located(est: Estimate, obs: Observation) -> Failure | None:
     if eig[0] < -1e-9 * max(abs(eig[-1]), 1e-300):
         return Failure("located", f"the lamp's covariance is not positive semi-definite (eigenvalue {eig[0]:.3g} m²)")
     sd = float(np.sqrt(max(eig[-1], 0.0)))
-    d = float(np.linalg.norm(est.lamp_position - obs.P[obs.peak]))
+    d = float(np.linalg.norm(est.lamp_position - origin))
     if sd > LOCATED_MAX * d:
-        return Failure("located", f"the lamp's 1-σ uncertainty {sd:.4g} m exceeds its {d:.4g} m distance from the "
-                                  "highlight: the data do not locate it")
+        return Failure("located", f"the lamp's 1-σ uncertainty {sd:.4g} m exceeds its {d:.4g} m distance from "
+                                  f"{what}: the data do not locate it")
     return None
 
 
@@ -383,7 +389,13 @@ def check(capture: Capture, est: Estimate, obs: Observation,
                     return failed
                 if (failed := _explains(est, explained)) is not None:
                     return _ks_only(est, obs, region, predicted, explained) or failed
-        return _located(est, obs)
+        return _located(est, obs.P[obs.peak])
+
+
+#: ``diagnostics["estimates"]`` of a method that states the lamp alone (a calibration target's, or the diffuse
+#: fall-off's): it reads no highlight and fits no Ks or σ, so the highlight's rules say nothing of it; its lamp
+#: must be finite, and the method refuses, with its reason, what its own data do not support.
+LAMP_ONLY = ["lamp"]
 
 
 def review(capture: Capture, est: Estimate, options: Mapping[str, Any]) -> Estimate:
@@ -405,6 +417,11 @@ def review(capture: Capture, est: Estimate, options: Mapping[str, Any]) -> Estim
         rules cannot observe (:func:`observation` raises) refuses the estimate
         (rule ``observable``): nothing holds the method's answer to the data.
     """
+    if est.diagnostics.get("estimates") == LAMP_ONLY:  # no highlight read, no Ks or σ: the lamp is all it states
+        if not np.all(np.isfinite(est.lamp_position)):
+            return est.refused("finite", f"lamp {_vec(est.lamp_position)} not finite")
+        failed = _located(est, np.asarray(capture.camera.position, float), "the camera")
+        return est if failed is None else est.refused(*failed)
     try:
         obs = observation(capture, options)
     except UserError as exc:

@@ -13,6 +13,8 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from ..suites.ladders import LADDERS
+
 #: ``scorecard.json``'s format prefix (:mod:`nearlight.evaluation.suites.scorecard`).
 SCORECARD_FORMAT = "nearlight-scorecard/"
 
@@ -109,11 +111,18 @@ def run_by(card: Mapping[str, Any]) -> str:
 
 #: Column names of the scorecard metrics (others keep their own).
 SHORT = {"lamp_position_error_pct": "lamp", "lamp_position_error_mm": "lamp", "lamp_position_error_m": "lamp",
-         "sigma_rel_error": "σ rel.", "ks_rel_error": "Ks rel."}  # fmt: skip
+         "direction_error_deg": "direction", "sigma_rel_error": "σ rel.", "ks_rel_error": "Ks rel."}  # fmt: skip
+#: The metrics whose recall ladder the leaderboard shows: where the lamp is.
+LAMP_LADDERS = ("lamp_", "direction_")
 
 
-def _unit(metric: str) -> str:
-    return " %" if metric.endswith("_pct") else " mm" if metric.endswith("_mm") else " m" if metric.endswith("_m") else ""
+def _unit(metric: str) -> tuple[str, float]:
+    """How a metric's thresholds and medians read: unit and scale, the scorecard's own (:data:`LADDERS`) when it
+    has a ladder there, else from the name's suffix."""
+    if metric in LADDERS:
+        return f" {LADDERS[metric].unit}", LADDERS[metric].scale
+    return (" %" if metric.endswith("_pct") else " mm" if metric.endswith("_mm") else " m" if metric.endswith("_m")
+            else ""), 1.0  # fmt: skip
 
 
 def rows(card: Mapping[str, Any]) -> list[Row]:
@@ -130,18 +139,19 @@ def rows(card: Mapping[str, Any]) -> list[Row]:
         cells = {"method": Cell(str(card.get("method", "?")), sort=str(card.get("method", "?"))),
                  "version": Cell(version(card), sort=version(card)), "run by": Cell(run_by(card), sort=run_by(card))}
         for m in metrics:
-            if not m.startswith("lamp_") or m not in g:
+            if not m.startswith(LAMP_LADDERS) or m not in g:
                 continue
+            unit, scale = _unit(m)
             for j, t in enumerate(card["thresholds"][m]):
                 n = _number(card, f"{base}/{m}/recall/{j}", 100.0)
-                cells[f"{SHORT.get(m, m)} ≤ {t:g}{_unit(m)}: recall %"] = Cell("{}", (n,), n.value)
+                cells[f"{SHORT.get(m, m)} ≤ {scale * t:g}{unit}: recall %"] = Cell("{}", (n,), n.value)
         for m in metrics:
             if m not in g:
                 continue
-            med = _number(card, f"{base}/{m}/median")
-            lo, hi = (_number(card, f"{base}/{m}/median_ci95/{k}") for k in (0, 1))
-            cells[f"{SHORT.get(m, m)} error{_unit(m) if m.startswith('lamp_') else ''}: median [95 %]"] = Cell(
-                "{} [{}, {}]", (med, lo, hi), med.value)
+            unit, scale = _unit(m) if m.startswith(LAMP_LADDERS) else ("", 1.0)
+            med = _number(card, f"{base}/{m}/median", scale)
+            lo, hi = (_number(card, f"{base}/{m}/median_ci95/{k}", scale) for k in (0, 1))
+            cells[f"{SHORT.get(m, m)} error{unit}: median [95 %]"] = Cell("{} [{}, {}]", (med, lo, hi), med.value)
         if "covariance" in g:
             cov = [_number(card, f"{base}/covariance/{k}", 100.0) for k in ("coverage", "coverage_lo", "coverage_hi")]
             cells["covariance coverage % [95 %]"] = Cell("{} [{}, {}]", tuple(cov), cov[0].value)

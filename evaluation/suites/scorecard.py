@@ -51,19 +51,11 @@ from ..engine.tasks import blank_row, failed_row
 from ..engine.workers import completed, executing
 from ..scoring.calibration import MAHALANOBIS_COLUMN, coverage, coverage_cells
 from ..scoring.metrics import ESTIMATE_COLUMNS, INFO_COLUMNS, LOBE_COLUMN, METRICS, estimate_columns, score
+from .ladders import LADDERS
 from .results_file import RESULTS_JSONL, estimate_row, read_results, row_estimate, write_results
 from .results_file import header as results_header
 from .suite import INPUT, MANIFEST, TRUTH, checksum_problems, read_manifest, strip_truth, suite_cases
 
-#: Metric -> (thresholds, as the metric's values; label of a threshold). The lamp: % of the distance from
-#: the highlight point; σ and Ks: relative errors 0.5 %, 1 %, 2 %, 5 %, 10 % (the issue's ladder).
-LADDERS: dict[str, tuple[tuple[float, ...], str]] = {
-    "lamp_position_error_pct": ((0.5, 1.0, 2.0, 5.0, 10.0), "{:g} %"),
-    "sigma_rel_error": ((0.005, 0.01, 0.02, 0.05, 0.1), "{:.3g}"),
-    "ks_rel_error": ((0.005, 0.01, 0.02, 0.05, 0.1), "{:.3g}"),
-}
-#: Short names of the ladders' metrics in tables and the figure.
-LABELS = {"lamp_position_error_pct": "lamp", "sigma_rel_error": "σ", "ks_rel_error": "Ks"}
 #: Bootstrap resamples of each median's interval, and its seed (a re-run gives the same interval).
 BOOTSTRAP = 2000
 BOOTSTRAP_SEED = 0
@@ -329,10 +321,10 @@ def _recalls(values: np.ndarray, thresholds: tuple[float, ...]) -> list[float]:
 def _group_stats(g: pd.DataFrame) -> dict[str, Any]:
     ok = (g["status"] == "ok").to_numpy()
     stats: dict[str, Any] = {"n": len(g), "failed": int((~ok).sum())}
-    for metric, (thresholds, _) in LADDERS.items():
+    for metric, ladder in LADDERS.items():
         vals = np.where(ok, g[metric].to_numpy(dtype=float), np.nan)
         med, lo, hi = median_ci(vals)
-        stats[metric] = {"recall": _recalls(vals, thresholds), "median": med, "median_ci95": [lo, hi]}
+        stats[metric] = {"recall": _recalls(vals, ladder.thresholds), "median": med, "median_ci95": [lo, hi]}
     if MAHALANOBIS_COLUMN in g.columns:  # rows written before the column existed have none
         stats["covariance"] = coverage(np.where(ok, g[MAHALANOBIS_COLUMN].to_numpy(dtype=float), np.nan))
     return stats
@@ -364,7 +356,7 @@ def scorecard(df: pd.DataFrame, manifest: Mapping[str, Any], *, label: str, cate
         "method": label,
         "cases": len(df),
         "failed": int((df["status"] != "ok").sum()),
-        "thresholds": {m: list(t) for m, (t, _) in LADDERS.items()},
+        "thresholds": {m: list(ladder.thresholds) for m, ladder in LADDERS.items()},
         "groups": groups,
         "runtime_s": {"median": float(np.nanmedian(rt)) if np.isfinite(rt).any() else math.nan,
                       "total": float(np.nansum(rt))},  # fmt: skip
@@ -373,12 +365,13 @@ def scorecard(df: pd.DataFrame, manifest: Mapping[str, Any], *, label: str, cate
     }
 
 
-def _fmt(x: float, pct: bool) -> str:
+def _fmt(x: float, scale: float = 1.0) -> str:
+    """``x × scale`` to three figures (– for NaN, ∞ for a median of misses)."""
     if x is None or (isinstance(x, float) and math.isnan(x)):
         return "–"
     if math.isinf(x):
         return "∞"
-    return f"{x:.3g}" if not pct else f"{100 * x:.3g}"
+    return f"{scale * x:.3g}"
 
 
 def scorecard_markdown(card: Mapping[str, Any]) -> str:
@@ -387,8 +380,8 @@ def scorecard_markdown(card: Mapping[str, Any]) -> str:
         f"{MD_TITLE}: {card['method']} on {card['suite']} v{card['version']}",
         "",
         f"{card['cases']} cases (suite cases {card['cases_hash']}), {card['failed']} failed (misses at every "
-        f"threshold). Method time: median {_fmt(card['runtime_s']['median'], False)} s per case, "
-        f"{_fmt(card['runtime_s']['total'], False)} s in all"
+        f"threshold). Method time: median {_fmt(card['runtime_s']['median'])} s per case, "
+        f"{_fmt(card['runtime_s']['total'])} s in all"
         + (f"; wall {card['wall_s']:.1f} s." if card.get("wall_s") else ".")
         + (f" Machine: {card['machine']}." if card.get("machine") else ""),
         *_self_reported_lines(card),
@@ -396,18 +389,18 @@ def scorecard_markdown(card: Mapping[str, Any]) -> str:
         "Recall: % of the cases whose error is below each threshold (a failure or an undefined error is a miss). "
         "Median with its 95 % bootstrap interval (misses count as ∞).",
     ]
-    for metric, (thresholds, fmt) in LADDERS.items():
-        unit = "% of the distance" if metric == "lamp_position_error_pct" else "relative"
-        pct = metric != "lamp_position_error_pct"
-        heads = [f"< {fmt.format(100 * t) + ' %' if pct else fmt.format(t)}" for t in thresholds]
+    for metric, ladder in LADDERS.items():
+        if metric not in card["groups"][0]:  # a scorecard written before this metric had a ladder
+            continue
+        heads = [f"< {ladder.scale * t:g} {ladder.unit}" for t in ladder.thresholds]
         rows = []
         for g in card["groups"]:
             s = g[metric]
             lo, hi = s["median_ci95"]
-            med = f"{_fmt(s['median'], pct)} [{_fmt(lo, pct)}, {_fmt(hi, pct)}]" + " %"
+            med = f"{_fmt(s['median'], ladder.scale)} [{_fmt(lo, ladder.scale)}, {_fmt(hi, ladder.scale)}] {ladder.unit}"
             rows.append([str(g["category"]), str(g["value"]), str(g["n"]), str(g["failed"]),
                          *(f"{100 * r:.0f}" for r in s["recall"]), med])  # fmt: skip
-        lines += ["", f"## {LABELS[metric]} ({metric}, {unit})", "",
+        lines += ["", f"## {ladder.label} ({metric}, {ladder.meaning})", "",
                   markdown_table(["category", "value", "n", "failed", *heads, "median [95 % CI]"], rows)]
     if any("covariance" in g for g in card["groups"]):
         rows = [[str(g["category"]), str(g["value"]), str(g["covariance"]["n"]), *coverage_cells(g["covariance"])]
@@ -442,9 +435,9 @@ def scorecard_figure(card: Mapping[str, Any], path: Path) -> Path:
     fig, axs = plt.subplots(len(cats), len(LADDERS), figsize=(3.4 * len(LADDERS), 2.3 * len(cats)),
                             squeeze=False, sharex="col", sharey=True)  # fmt: skip
     for i, cat in enumerate(cats):
-        for j, (metric, (thresholds, _)) in enumerate(LADDERS.items()):
+        for j, (metric, ladder) in enumerate(LADDERS.items()):
             ax = axs[i, j]
-            x = np.array(thresholds) * (1 if metric == "lamp_position_error_pct" else 100)
+            x = np.array(ladder.thresholds) * ladder.scale
             for g in card["groups"]:
                 if g["category"] == cat:
                     ax.plot(x, 100 * np.array(g[metric]["recall"]), marker="o", ms=3, label=f"{g['value']} (n={g['n']})")
@@ -454,9 +447,9 @@ def scorecard_figure(card: Mapping[str, Any], path: Path) -> Path:
             ax.set_ylim(-3, 103)
             ax.grid(alpha=0.3)
             if i == 0:
-                ax.set_title(f"{LABELS[metric]} error", fontsize=10)
+                ax.set_title(f"{ladder.label} error", fontsize=10)
             if i == len(cats) - 1:
-                ax.set_xlabel("threshold (% of distance)" if metric == "lamp_position_error_pct" else "threshold (%)")
+                ax.set_xlabel(f"threshold ({ladder.unit})")
             if j == 0:
                 ax.set_ylabel(f"{cat}\nrecall (%)", fontsize=9)
             if j == len(LADDERS) - 1:

@@ -17,7 +17,7 @@ import pytest
 from nearlight.capture import read_capture
 from nearlight.cli import main
 from nearlight.evaluation.scoring.metrics import truth_estimate
-from nearlight.evaluation.suites.scorecard import LADDERS, median_ci, scorecard
+from nearlight.evaluation.suites.scorecard import LADDERS, median_ci, scorecard, scorecard_markdown
 from nearlight.evaluation.suites.suite import read_manifest
 
 from .test_build import N_CASES, write_suite
@@ -229,15 +229,23 @@ def test_median_interval_counts_misses_as_infinite():
 
 
 def test_recall_ladder_on_known_errors():
-    """4 cases, lamp errors 0.3, 1.5, 7 %, and one failure: recall 1/4, 1/4, 2/4, 2/4, 3/4."""
+    """4 cases, lamp errors 0.3, 1.5, 7 %, and one failure: recall 1/4, 1/4, 2/4, 2/4, 3/4; in millimetres 0.5, 3, 15
+    and the failure (thresholds 1, 2, 5, 10, 20 mm): the same; directions 0.2°, 3°, 30° (0.5°, 1°, 2°, 5°, 10°)."""
     df = pd.DataFrame({"status": ["ok", "ok", "ok", "error"], "lamp_position_error_pct": [0.3, 1.5, 7.0, np.nan],
+                       "lamp_position_error_m": [0.0005, 0.003, 0.015, np.nan],
+                       "direction_error_deg": [0.2, 3.0, 30.0, np.nan],
                        "sigma_rel_error": [0.0, 0.0, 0.0, np.nan], "ks_rel_error": [0.0, 0.0, np.nan, np.nan],
                        "runtime_s": [1.0, 2.0, 3.0, np.nan], "code_version": "x", "error": ["", "", "", "boom"],
                        "k": ["a", "a", "b", "b"]})  # fmt: skip
     card = scorecard(df, {"suite": "s", "version": 1, "cases_hash": "h"}, label="m", categories=["k"])
     g = card["groups"][0]
     assert g["lamp_position_error_pct"]["recall"] == [0.25, 0.25, 0.5, 0.5, 0.75]
+    assert g["lamp_position_error_m"]["recall"] == [0.25, 0.25, 0.5, 0.5, 0.75]
+    assert g["direction_error_deg"]["recall"] == [0.25, 0.25, 0.25, 0.5, 0.5]
     assert g["ks_rel_error"]["recall"] == [0.5] * 5  # a NaN error is a miss too
+    md = scorecard_markdown(card)
+    assert "| < 1 mm | < 2 mm | < 5 mm | < 10 mm | < 20 mm |" in md
+    assert "## lamp (mm) (lamp_position_error_m, millimetres)" in md and "< 0.5 °" in md
     assert (card["failed"], card["runtime_s"]["total"]) == (1, 6.0)
     assert [(x["value"], x["n"], x["failed"]) for x in card["groups"][1:]] == [("a", 2, 0), ("b", 2, 1)]
 
