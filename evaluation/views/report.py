@@ -38,6 +38,7 @@ from ..scoring.calibration import MAHALANOBIS_COLUMN, coverage_table
 from ..scoring.matching import GATE_FRACTION
 from ..scoring.metrics import COUNTED_COLUMN, LAMP_COUNT_COLUMNS, METRICS, PER_LAMP_COLUMN
 from .one_at_a_time import LABEL_AXES, SPLIT, label_table, markdown_tables, plot_heatmap
+from .winners import plot_winners, winners_table, winners_wide
 from .luck import LUCK_PNG, luck_table, plot_luck
 from ..engine.provenance import record
 from ..engine.store import SWEEP_JSON, read_sweep_json, read_results
@@ -239,14 +240,15 @@ def plot_lamps(table: pd.DataFrame, path: Path) -> None:
 
 
 def report_files(varied: list[str], labelled: list[str] = (), luck: bool = False,
-                 lamps: bool = False, covariance: bool = False) -> dict[str, str]:
+                 lamps: bool = False, covariance: bool = False, winners: bool = False) -> dict[str, str]:
     """``{file name: kind}`` of every file a report writes (kinds: :data:`nearlight.files.outputs.KINDS`).
 
     ``varied``: the axes with several values; ``labelled``: the axes of named configurations
     (:data:`~nearlight.evaluation.views.one_at_a_time.LABEL_AXES`) the sweep has; ``luck``: whether the
     luck section is written (:func:`~nearlight.evaluation.views.luck.luck_table` not empty); ``lamps``:
     whether the lamps section is (:func:`lamp_table` not empty); ``covariance``: whether a method returned a
-    covariance (:func:`covariance_tables` not empty).
+    covariance (:func:`covariance_tables` not empty); ``winners``: whether the winners section is
+    (:func:`~nearlight.evaluation.views.winners.winners_table` not empty).
     """
     files = {"summary.md": "report-md", "overall.csv": "report-csv", "by_axis.csv": "report-csv",
              "crlb.csv": "report-csv"}  # fmt: skip
@@ -261,6 +263,8 @@ def report_files(varied: list[str], labelled: list[str] = (), luck: bool = False
         files.update({_lamps_by_name(a): "report-csv" for a in labelled})
     if covariance:
         files["covariance.csv"] = "report-csv"
+    if winners:
+        files.update({"winners.csv": "report-csv", "winners.png": "png"})
     return files
 
 
@@ -317,8 +321,9 @@ def write_report(
     luck = luck_table(df, axes)
     lamps = lamp_table(df)
     cov_overall, cov_by = covariance_tables(df, varied)
+    wins = winners_table(df, varied)
     check_files_in(folder, report_files(varied, labelled, luck=not luck.empty, lamps=not lamps.empty,
-                                        covariance=not cov_overall.empty))
+                                        covariance=not cov_overall.empty, winners=not wins.empty))
     make_folder(folder, what="report folder")
 
     overall = stats(df, ["method"])
@@ -362,6 +367,16 @@ def write_report(
                    "segmentation, `nearlight.estimator.highlights.segment_highlights`; 1 where the lamps' highlights "
                    "have merged into one blob), a range where the other axes change it; per method, the tasks that found every lamp and nothing extra, "
                    "of its tasks (failed ones count as not found).", "", frame_table(_lamps_by_wide(by)), ""]
+    if not wins.empty:
+        write_text(folder / "winners.csv", wins.to_csv(index=False), what="the report")
+        plot_winners(wins, varied, folder / "winners.png")
+        md += ["## Which method wins where", "",
+               f"Per configuration, each method's median lamp position error (mm) with its 95 % bootstrap interval "
+               f"over the seeds (a failure is a miss, +∞); `winner`: the method whose interval lies wholly below "
+               f"every other's, or the methods the best cannot be told from. `winners.csv` adds each method's RMSE "
+               f"and how often the true lamp fell inside its own 95 % ellipsoid, with the exact binomial interval "
+               f"(`nearlight.evaluation.views.winners`).", "", frame_table(winners_wide(wins, varied)), "",
+               "![which method wins where](winners.png)", ""]
     if not cov_overall.empty:
         long = pd.concat([cov_overall.assign(axis="all", value="all")]
                          + [t.rename(columns={a: "value"}).assign(axis=a) for a, t in cov_by], ignore_index=True)
