@@ -55,7 +55,7 @@ from ..files.atomic import atomic_write
 from ..files.digests import file_sha256
 from ..physics.polarization import analyzer_stack, filter_axes
 from .scene import LAMP_V1_KEYS, LampSpec, MitsubaMaterial, Scene, lamp_name, placement
-from .targets import BLACK, lamp_shape_name, needs_ids, object_names, rig_targets, shape_objects, target_shapes
+from .targets import BLACK, lamp_shape_name, needs_ids, object_names, rig_targets, target_shapes
 from .targets import target_truth
 
 #: Bump when a change alters rendered values (invalidates caches).
@@ -328,26 +328,26 @@ def surface(mi: ModuleType, mscene: Any) -> tuple[np.ndarray, np.ndarray]:
     return P, N
 
 
-def object_ids(mi: ModuleType, mscene: Any, names: dict[str, str], objects: Sequence[str]) -> np.ndarray:
-    """``[H, W]`` int32: which object each pixel-centre ray hits first (0: none, ``i + 1``: ``objects[i]``).
+def object_ids(mi: ModuleType, sensor: Any, groups: Sequence[Any]) -> np.ndarray:
+    """``[H, W]`` int32: which object each pixel-centre ray meets first (0: none, ``i + 1``: ``groups[i]``).
 
-    ``names`` maps every Mitsuba shape id to the name in ``objects`` of what it belongs to.
+    Each of ``groups`` is a Mitsuba scene holding one object's shapes alone; a pixel's id is the group whose
+    nearest hit along its ray is nearest. Intersecting each object by itself, not asking the whole scene which
+    shape it hit: Mitsuba merges meshes that share a BSDF (a bookend's two plates, two cards) into one shape
+    without their names.
     """
     from .llvm import is_scalar
 
-    sensor = mscene.sensors()[0]
     w, h = sensor.film().size()
-    ids = np.zeros(h * w, np.int32)
     if is_scalar(mi):
-        shapes = [mscene.ray_intersect(ray).shape for ray in _scalar_rays(mi, sensor)]
-        for shape in mscene.shapes():
-            hit = np.array([bool(s == mi.ShapePtr(shape)) if s is not None else False for s in shapes])
-            ids[hit] = objects.index(names[shape.id()]) + 1
+        rays = _scalar_rays(mi, sensor)
+        t = np.array([[float(g.ray_intersect(ray).t) for ray in rays] for g in groups])
     else:
-        si = mscene.ray_intersect(sensor_rays(mi, sensor))
-        for shape in mscene.shapes():
-            ids[np.asarray(si.shape == mi.ShapePtr(shape), dtype=bool)] = objects.index(names[shape.id()]) + 1
-    return ids.reshape(h, w)
+        rays = sensor_rays(mi, sensor)
+        t = np.stack([np.asarray(g.ray_intersect(rays).t, dtype=float) for g in groups])
+    t = np.where(np.isfinite(t), t, np.inf)
+    first = np.argmin(t, axis=0)
+    return np.where(np.isfinite(t.min(axis=0)), first + 1, 0).astype(np.int32).reshape(h, w)
 
 
 def lamp_inside(mi: ModuleType, mscene: Any, position: Any) -> bool:
@@ -702,9 +702,16 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
 
 
 def _object_ids(mi: ModuleType, scene: Scene, mscene: Any, scratch: Path) -> np.ndarray:
-    """:func:`object_ids` of a render pass's Mitsuba scene (the object's shapes named by their builder)."""
-    names = shape_objects(scene, list(object_dicts(mi, scene, BLACK, scratch)))
-    return object_ids(mi, mscene, names, object_names(scene))
+    """:func:`object_ids` of a render pass's sensor, one group per name of
+    :func:`~nearlight.generator.targets.object_names`: the object, each target, each lamp rays can hit."""
+    groups = [{"type": "scene", **object_dicts(mi, scene, BLACK, scratch)}]
+    for name, shape in target_shapes(scene, lit=False).items():
+        groups.append({"type": "scene", name: {**shape, "to_world": _transform(mi, shape["to_world"])}
+                       if "to_world" in shape else shape})  # fmt: skip
+    groups += [{"type": "scene", "lamp": {"type": "sphere", "center": list(lamp.position), "radius": lamp.radius,
+                                          "bsdf": BLACK}}
+               for lamp in scene.lamps if lamp.intersectable]  # fmt: skip
+    return object_ids(mi, mscene.sensors()[0], [_load_scene(mi, scene, g) for g in groups])
 
 
 def _check_geometry(mi: ModuleType, scene: Scene, geometry: Any, P: np.ndarray, ids: np.ndarray | None,

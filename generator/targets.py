@@ -19,7 +19,9 @@ camera sees directly) is its own pass, ``others``
 (:func:`nearlight.generator.render._render_arrays`).
 
 Ids (:func:`object_names`, :mod:`nearlight.capture.targets`): ``object`` 1,
-``targets.<k>`` ``k + 2``, then every intersectable lamp.
+``targets.<k>`` ``k + 2``, then every intersectable lamp; each pixel's is the
+object its pixel-centre ray meets first
+(:func:`nearlight.generator.render.object_ids`).
 """
 
 from __future__ import annotations
@@ -65,15 +67,6 @@ def object_names(scene: Scene) -> tuple[str, ...]:
     """The capture's ``objects``: the object, each target, each intersectable lamp (id = index + 1)."""
     lamps = [lamp_name(i, len(scene.lamps)) for i, lamp in enumerate(scene.lamps) if lamp.intersectable]
     return (OBJECT, *(f"targets.{k}" for k in range(len(scene.targets))), *lamps)
-
-
-def shape_objects(scene: Scene, object_shapes: list[str]) -> dict[str, str]:
-    """Mitsuba shape id → the name in :func:`object_names` of what it belongs to."""
-    out = {name: OBJECT for name in object_shapes}
-    out.update({shape_name(k): f"targets.{k}" for k in range(len(scene.targets))})
-    n = len(scene.lamps)
-    out.update({lamp_shape_name(i): lamp_name(i, n) for i, lamp in enumerate(scene.lamps) if lamp.intersectable})
-    return out
 
 
 def needs_ids(scene: Scene) -> bool:

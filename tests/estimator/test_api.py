@@ -29,7 +29,7 @@ def test_estimator_never_imports_mitsuba_or_drjit():
 
 
 def test_methods_table_and_public_names():
-    assert set(METHODS) == {"paper", "paper-init", "full", "distant"}
+    assert set(METHODS) == {"paper", "paper-init", "full", "distant", "lambertian-plane", "mirror-spheres"}
     for name in ("estimate", "Estimate", "METHODS", "load_method", "render_specular", "separate"):
         assert hasattr(est_pkg, name)
 

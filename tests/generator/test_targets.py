@@ -219,3 +219,20 @@ def test_full_fits_the_boards_pixels_only(renders):
     a, b = estimate(alone, method="full"), estimate(cap, method="full")
     assert a.ok and b.ok
     assert np.linalg.norm(a.lamp_position - b.lamp_position) < 1e-6
+
+
+@pytest.mark.render
+def test_ids_survive_mitsubas_merging_of_meshes_that_share_a_bsdf():
+    """A bookend's two plates share a BSDF, as do two black cards in a pass about the object: Mitsuba merges each
+    pair into one nameless mesh, so the ids come from intersecting each object alone (found on the targets
+    study's bookend). Every pixel the bookend covers without targets is the object's with them, except where a
+    target stands in front of it."""
+    from nearlight.generator import render_clean
+
+    cards = [{"type": "matte_card", "position": [x, 0.05, 0.001], "size": [0.03, 0.03]} for x in (-0.08, 0.08)]
+    alone = render_clean(load_scene(SCENES / "bookend.yaml", overrides=SMALL), progress=False)
+    cap = render_clean(load_scene(SCENES / "bookend.yaml", overrides={**SMALL, "targets": cards}), progress=False)
+    assert cap.objects == ("object", "targets.0", "targets.1")
+    counts = np.bincount(cap.object_id.ravel(), minlength=4)
+    assert counts[1] > 100 and counts[2] > 20 and counts[3] > 20
+    assert np.array_equal(cap.object_id == 1, alone.surface_mask & (cap.object_id < 2))
