@@ -48,6 +48,7 @@ from types import ModuleType
 from typing import Any
 
 import numpy as np
+from scipy.ndimage import binary_dilation
 
 from ..capture import Camera, Capture, LampFilter, Rig
 from ..errors import UserError
@@ -205,22 +206,31 @@ def scene_dict(mi: ModuleType, scene: Scene, *, part: str = "full", channel: int
 MAX_WAVEFRONT = 1 << 21
 
 
-def sensor_rays(mi: ModuleType, sensor: Any, repeat: int = 1, offset: Any = None) -> Any:
-    """Rays through every pixel centre, row-major from the top-left pixel, the image ``repeat`` times over; with
-    ``offset`` (a ``mi.Point2f`` in [0, 1)², one per ray) through that point of each pixel instead."""
+def sensor_rays(mi: ModuleType, sensor: Any, repeat: int = 1) -> Any:
+    """Rays through every pixel centre, row-major from the top-left pixel, the image ``repeat`` times over."""
     import drjit as dr
 
     w, h = sensor.film().size()
     idx = dr.arange(mi.UInt32, w * h * repeat) % (w * h)
-    if offset is None:
-        pos = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
-    else:
-        pos = mi.Point2f((mi.Float(idx % w) + offset.x) / w, (mi.Float(idx // w) + offset.y) / h)
+    pos = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
     ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
     return ray
 
 
-def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=None, area: bool = False) -> np.ndarray:
+def _to_sensor_stokes(mi: ModuleType, sensor: Any, ray: Any, spec: Any) -> list:
+    """S0, S1, S2 of the integrator's Mueller result along ``ray``, rotated from the ray's implicit basis to the
+    sensor's x axis, as Mitsuba's ``stokes`` integrator does."""
+    import drjit as dr
+
+    vertical = sensor.world_transform() @ mi.Vector3f(0.0, 1.0, 0.0)
+    to_sensor = mi.mueller.rotate_stokes_basis(-ray.d, mi.mueller.stokes_basis(-ray.d), dr.cross(ray.d, vertical))
+    spec = mi.Spectrum(to_sensor) * spec
+    stokes = [spec[i, 0] for i in range(3)]
+    dr.eval(stokes)
+    return stokes
+
+
+def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=None) -> np.ndarray:
     """Stokes S0, S1, S2 at every pixel centre, in the sensor frame.
 
     Parameters
@@ -234,9 +244,6 @@ def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=N
         Sampler seed.
     tick : callable, optional
         Called with the number of samples per pixel done, for progress bars.
-    area : bool
-        Each sample through a uniformly random point of its pixel (a camera's pixel integrating over its area:
-        a lamp's image smaller than a pixel on a mirror ball), not its centre.
 
     Returns
     -------
@@ -249,32 +256,85 @@ def trace_stokes(mi: ModuleType, mscene: Any, *, spp: int, seed: int = 0, tick=N
 
     sensor = mscene.sensors()[0]
     if is_scalar(mi):
-        if area:
-            raise UserError("calibration targets and lamps rays can hit need Mitsuba's LLVM variant (its scalar "
-                            "fallback traces pixel centres only): install libLLVM (docs/physics.md)")
         return _trace_stokes_scalar(mi, mscene, spp=spp, seed=seed, tick=tick)
     w, h = sensor.film().size()
     integrator = mscene.integrator()
-    vertical = sensor.world_transform() @ mi.Vector3f(0.0, 1.0, 0.0)
     batch = max(1, min(spp, MAX_WAVEFRONT // (w * h)))
     total = np.zeros((3, h * w))
     done = 0
     while done < spp:
         n = min(batch, spp - done)
+        ray = sensor_rays(mi, sensor, n)
         sampler = mi.load_dict({"type": "independent"})
         sampler.seed(seed + done, w * h * n)
-        ray = sensor_rays(mi, sensor, n, offset=sampler.next_2d() if area else None)
         spec, _, _ = integrator.sample(mscene, sampler, ray, None, True)
-        # As Mitsuba's stokes integrator: rotate from the ray's implicit basis to the sensor's x axis.
-        to_sensor = mi.mueller.rotate_stokes_basis(-ray.d, mi.mueller.stokes_basis(-ray.d), dr.cross(ray.d, vertical))
-        spec = mi.Spectrum(to_sensor) * spec
-        stokes = [spec[i, 0] for i in range(3)]
-        dr.eval(stokes)
+        stokes = _to_sensor_stokes(mi, sensor, ray, spec)
         total += np.stack([np.asarray(c, dtype=float).reshape(n, h * w).sum(0) for c in stokes])
         done += n
         if tick is not None:
             tick(n)
     return (total / spp).reshape(3, h, w)
+
+
+def trace_stokes_area(mi: ModuleType, mscene: Any, pixels: np.ndarray, *, side: int, seed: int = 0,
+                      tick=None) -> np.ndarray:  # fmt: skip
+    """Stokes S0, S1, S2 averaged over the area of each marked pixel, in the sensor frame (0 at the others).
+
+    A pixel integrating the light over its area, as a camera's does: ``side²`` samples per pixel, one uniformly
+    in each cell of a ``side`` × ``side`` grid over it (jittered stratification: an image edge crossing the
+    pixel is found to within a cell, where independent samples would miss a lamp's image a tenth of a pixel
+    wide as often as not).
+
+    Parameters
+    ----------
+    mi : module
+    mscene : mitsuba.Scene
+        With a ``path`` integrator.
+    pixels : ndarray of bool, shape (H, W)
+        The pixels to trace.
+    side : int
+        Cells per pixel side.
+    seed : int
+    tick : callable, optional
+        Called with the share of the image's samples done (in samples per pixel of the whole image).
+
+    Returns
+    -------
+    ndarray, shape (3, H, W)
+
+    Raises
+    ------
+    UserError
+        Mitsuba's scalar fallback (no LLVM): it traces pixel centres only.
+    """
+    from .llvm import is_scalar
+
+    if is_scalar(mi):
+        raise UserError("calibration targets and lamps rays can hit need Mitsuba's LLVM variant (its scalar "
+                        "fallback traces pixel centres only): install libLLVM (docs/physics.md)")
+    sensor = mscene.sensors()[0]
+    w, h = sensor.film().size()
+    idx = np.flatnonzero(pixels.ravel())
+    total = np.zeros((3, h * w))
+    cells = side * side
+    per = max(1, MAX_WAVEFRONT // max(idx.size, 1))
+    rng = np.random.default_rng(seed)
+    for start in range(0, cells if idx.size else 0, per):
+        k = np.repeat(np.arange(start, min(cells, start + per)), idx.size)
+        p = np.tile(idx, len(k) // idx.size)
+        u, v = rng.random((2, k.size))
+        x = ((p % w) + ((k % side) + u) / side) / w
+        y = ((p // w) + ((k // side) + v) / side) / h
+        ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(mi.Float(x.astype(np.float32)), mi.Float(y.astype(np.float32))),
+                                   mi.Point2f(0.5))  # fmt: skip
+        sampler = mi.load_dict({"type": "independent"})
+        sampler.seed(seed + start, k.size)
+        spec, _, _ = mscene.integrator().sample(mscene, sampler, ray, None, True)
+        for c, s in enumerate(_to_sensor_stokes(mi, sensor, ray, spec)):
+            total[c] += np.bincount(p, weights=np.asarray(s, dtype=float).reshape(-1), minlength=h * w)
+        if tick is not None:
+            tick(k.size / (w * h))
+    return (total / cells).reshape(3, h, w)
 
 
 def _scalar_rays(mi: ModuleType, sensor: Any) -> list:
@@ -603,19 +663,18 @@ def _load_scene(mi: ModuleType, scene: Scene, doc: dict) -> Any:
         raise UserError(f"{scene.source}: object.file: Mitsuba cannot load {scene.object.file}: {reason}") from None
 
 
-#: Fewest samples per pixel of the ``others`` pass, each through a random point of its pixel: a boundary pixel of
-#: a lamp's image on a mirror ball is then within about ``√(p(1 − p)/64) ≤ 6 %`` of the lamp's radiance.
-OTHERS_SPP = 64
+#: Cells per pixel side of the ``others`` pass (:func:`trace_stokes_area`): 32 × 32 = 1024 samples over each
+#: pixel that sees (or borders) a target or a lamp, where a lamp's image on a mirror ball may be a tenth of a pixel
+#: wide; a pixel its edge crosses is then within about one cell row of the edge's length (≤ 1/32 of the pixel).
+OTHERS_SIDE = 32
 
 
-def traced_spp(scene: Scene, lamp: int | None = None, part: str = "full") -> int:
+def traced_spp(scene: Scene, lamp: int | None = None) -> int:
     """Samples traced per pixel in one pass lighting lamp ``lamp`` (default: the one lamp of a one-lamp scene):
-    ``capture.spp``, times ``lamp.samples`` for a sphere lamp (``lamp.radius`` > 0); at least
-    :data:`OTHERS_SPP` in the ``others`` pass (sampled over each pixel's area)."""
+    ``capture.spp``, times ``lamp.samples`` for a sphere lamp (``lamp.radius`` > 0)."""
     spec = scene.lamp if lamp is None else scene.lamps[lamp]
     spp = scene.capture.spp
-    spp = spp * spec.samples if spec.radius > 0 else spp
-    return max(spp, OTHERS_SPP) if part == "others" else spp
+    return spp * spec.samples if spec.radius > 0 else spp
 
 
 def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
@@ -630,8 +689,9 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
     arrays also hold ``object_id`` (:func:`object_ids`); the specular and diffuse parts are the object's alone
     (zero at every other pixel: a lamp seen directly is in every pass), and with direct light only the light of
     everything else is the ``others`` pass (the object black), added to the full image. The ``others`` pass is
-    sampled over each pixel's area (at least :data:`OTHERS_SPP` samples), as a camera integrates: a lamp's image
-    on a mirror ball is often smaller than a pixel and would fall between pixel centres. So a pixel whose centre
+    sampled over the area of each pixel that sees or borders a target or a lamp (:func:`trace_stokes_area`,
+    :data:`OTHERS_SIDE`² samples), as a camera integrates: a lamp's image on a mirror ball is often smaller than
+    a pixel and would fall between pixel centres. So a pixel whose centre
     sees the object holds the object's light at that point (its ``P``, ``N``), exactly as before targets existed,
     and any other pixel the light of everything but the object over its area (a target's edge pixel is dimmer
     by the fraction of it the object covers).
@@ -654,7 +714,7 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
             parts = ("specular", "diffuse", "full") if analytic else ("full",)
             passes += [(p, c, i) for c in range(3) for p in (*parts, *(("others",) if ids else ()))]
     _remove_stale_scratch()
-    total = sum(traced_spp(scene, i, p) for p, _, i in passes)
+    total = sum(traced_spp(scene, i) for p, _, i in passes if p != "others")
     with tempfile.TemporaryDirectory(prefix=f"{SCRATCH_PREFIX}{os.getpid()}-") as scratch, tqdm(
         total=total, desc=f"render ({len(passes)} passes)", unit="spp", disable=not progress, leave=False
     ) as bar:
@@ -667,7 +727,11 @@ def _render_arrays(scene: Scene, *, progress: bool) -> dict[str, np.ndarray]:
                 id_image = _object_ids(mi, scene, mscene, Path(scratch)) if ids else None
                 _check_geometry(mi, scene, mscene, P, id_image, Path(scratch))
                 to_world = np.asarray(mscene.sensors()[0].world_transform().matrix, float).reshape(4, 4)
-            s = trace_stokes(mi, mscene, spp=traced_spp(scene, i, part), tick=bar.update, area=part == "others")
+            if part == "others":  # over the area of every pixel that sees or borders a target or a lamp
+                around = binary_dilation((id_image > 1), iterations=1)
+                s = trace_stokes_area(mi, mscene, around, side=OTHERS_SIDE)
+            else:
+                s = trace_stokes(mi, mscene, spp=traced_spp(scene, i), tick=bar.update)
             if id_image is not None and part != "full":  # a pixel's light is the object's where its centre sees it
                 s = np.where((id_image == 1) == (part != "others"), s, 0.0)
             keys = [f"{part}_lamp{i}", part] if several else [part]
