@@ -467,7 +467,7 @@ def lambertian_plane_estimate(
         ``lamp_position``; ``ks`` and ``sigma`` NaN (not estimated); ``covariance`` with the lamp's
         ``(x, y, z)`` block (m²) and the σ row and column NaN. ``stages["fit"]``: the beam's ``k`` and
         ``axis`` (NaN when isotropic), the plane's ``normal``, the weighted residual ``rms`` and the reduced
-        ``chi2``, ``n_pixels``, ``n_starts``, the ``noise`` model; ``diagnostics["estimates"] = ["lamp"]``.
+        ``chi2``, ``n_pixels``, ``n_starts``, the ``noise`` model; ``diagnostics["undetermined"] = ["ks", "sigma"]`` (the lamp alone).
 
     Raises
     ------
@@ -532,7 +532,7 @@ def lambertian_plane_estimate(
             "n_starts": n_starts,
             "noise": "none: unit weights, covariance scaled by chi2" if noise is None else noise.source,
         }},
-        diagnostics={"estimates": ["lamp"], "n_pixels": int(use.sum()), "plane_extent_m": extent},
+        diagnostics={"undetermined": ["ks", "sigma"], "n_pixels": int(use.sum()), "plane_extent_m": extent},
         timings=timings,
     )
 

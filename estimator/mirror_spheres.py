@@ -21,7 +21,7 @@ ray from the ball towards the lamp; two or more balls fix the lamp.
   estimate made from it, and reaches the lamp magnified about 2 × distance / radius (40 for a 25-mm ball 0.5 m
   from the lamp): no fit averages it away, so a covariance without it claims far more than the capture supports.
 
-The method estimates the lamp only: Ks and σ are NaN, and ``diagnostics["estimates"]`` is ``["lamp"]``.
+The method estimates the lamp only: Ks and σ are NaN, and ``diagnostics["undetermined"]`` names them.
 """
 
 from __future__ import annotations
@@ -563,7 +563,7 @@ def mirror_spheres_estimate(
             "init": {"lamp": found["start"], "reprojection_rms_px": rms(found["start"])},
             "fit": {"lamp": found["lamp"], "reprojection_rms_px": rms(found["lamp"]), **found.get("fit", {})},
         },
-        diagnostics={"estimates": ["lamp"], "centres": centres,
+        diagnostics={"undetermined": ["ks", "sigma"], "centres": centres,
                      "centroid_noise": {"source": "residual" if noise is None else noise.source,
                                         "excess_px2": excess}},  # fmt: skip
         timings=timings,

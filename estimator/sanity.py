@@ -74,7 +74,7 @@ Several-lamp estimates (``lamp_positions`` with more than one row) get the
 checked for ``finite`` and ``reach``; ``in-front`` and ``explains`` need the
 lamp each highlight pixel belongs to, which the estimate does not state.
 
-A method that states the lamp alone (``diagnostics["estimates"] == ["lamp"]``:
+A method that states the lamp alone (``diagnostics["undetermined"]`` names ``ks`` and ``sigma``:
 ``lambertian-plane``, ``mirror-spheres``) reads no highlight: it is held to
 ``finite`` on its lamp and ``located`` (its distance from the camera) only
 (:data:`LAMP_ONLY`), and refuses itself what its own data do not support.
@@ -392,10 +392,10 @@ def check(capture: Capture, est: Estimate, obs: Observation,
         return _located(est, obs.P[obs.peak])
 
 
-#: ``diagnostics["estimates"]`` of a method that states the lamp alone (a calibration target's, or the diffuse
-#: fall-off's): it reads no highlight and fits no Ks or σ, so the highlight's rules say nothing of it; its lamp
-#: must be finite, and the method refuses, with its reason, what its own data do not support.
-LAMP_ONLY = ["lamp"]
+#: What ``diagnostics["undetermined"]`` names for a method that states the lamp alone (a calibration target's, or
+#: the diffuse fall-off's): it reads no highlight and fits no Ks or σ, so the highlight's rules say nothing of it;
+#: its lamp must be finite and located, and the method refuses, with its reason, what its own data do not support.
+LAMP_ONLY = ("ks", "sigma")
 
 
 def review(capture: Capture, est: Estimate, options: Mapping[str, Any]) -> Estimate:
@@ -417,7 +417,7 @@ def review(capture: Capture, est: Estimate, options: Mapping[str, Any]) -> Estim
         rules cannot observe (:func:`observation` raises) refuses the estimate
         (rule ``observable``): nothing holds the method's answer to the data.
     """
-    if est.diagnostics.get("estimates") == LAMP_ONLY:  # no highlight read, no Ks or σ: the lamp is all it states
+    if set(LAMP_ONLY) <= set(est.diagnostics.get("undetermined", ())):  # no highlight read, no Ks or σ: the lamp is all it states
         if not np.all(np.isfinite(est.lamp_position)):
             return est.refused("finite", f"lamp {_vec(est.lamp_position)} not finite")
         failed = _located(est, np.asarray(capture.camera.position, float), "the camera")

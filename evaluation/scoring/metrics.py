@@ -602,7 +602,8 @@ def score(capture: Any, estimate: Any) -> dict[str, float]:
         "distance_error_m": lamps.pop("distance_error_m"),
         "sigma_rel_error": math.nan if "sigma" in estimate.diagnostics.get("undetermined", ())
         else sigma_relative_error(estimate.sigma, sigma_true),
-        "ks_rel_error": math.nan if ks_true is None else ks_relative_error(estimate.ks, ks_true),
+        "ks_rel_error": math.nan if ks_true is None or "ks" in estimate.diagnostics.get("undetermined", ())
+        else ks_relative_error(estimate.ks, ks_true),
         "specular_rmse": rmse[0],
         "specular_rmse_rel": rmse[1],
         "distance_signed_m": lamps.pop("distance_signed_m"),

@@ -39,7 +39,7 @@ class Ladder:
 #: (0.5° is about 1 % of the distance); σ and Ks: relative errors 0.5 %, 1 %, 2 %, 5 %, 10 %.
 LADDERS: dict[str, Ladder] = {
     "lamp_position_error_pct": Ladder((0.5, 1.0, 2.0, 5.0, 10.0), "lamp", "%", 1.0, "% of the distance"),
-    "lamp_position_error_m": Ladder((0.001, 0.002, 0.005, 0.01, 0.02), "lamp (mm)", "mm", 1000.0, "millimetres"),
+    "lamp_position_error_m": Ladder((0.001, 0.002, 0.005, 0.01, 0.02), "lamp (mm)", "mm", 1000.0, "absolute"),
     "direction_error_deg": Ladder((0.5, 1.0, 2.0, 5.0, 10.0), "direction", "°", 1.0,
                                   "degrees, seen from the highlight point"),
     "sigma_rel_error": Ladder((0.005, 0.01, 0.02, 0.05, 0.1), "σ", "%", 100.0, "relative"),

@@ -116,8 +116,9 @@ def _models() -> tuple[type, type]:
                     raise ValueError("a failed row needs its reason (one line: why the method gave no answer)")
                 return self
             for key in ("lamp_position", "ks", "sigma"):
-                if getattr(self, key) is None:
-                    raise ValueError(f"{key}: missing (a row with status ok needs lamp_position, ks and sigma)")
+                if getattr(self, key) is None and key not in self.undetermined:
+                    raise ValueError(f"{key}: missing (a row with status ok needs lamp_position, ks and sigma, unless "
+                                     "undetermined names ks or sigma)")
             return self
 
         @field_validator("covariance")
@@ -222,8 +223,12 @@ def estimate_row(case_id: str, answer: Estimate | None, reviewed: Estimate | Non
         reason = error or (f"{failure['rule']}: {failure['reason']}" if failure else "failed")
         row.update(status="failed", reason=one_line(reason)[:2000])
     else:
-        row.update(status="ok", lamp_position=_floats(answer.lamp_position), ks=_floats(np.broadcast_to(answer.ks, (3,))),
-                   sigma=float(answer.sigma))  # fmt: skip
+        undetermined = set(answer.diagnostics.get("undetermined", ()))
+        row.update(status="ok", lamp_position=_floats(answer.lamp_position))
+        if "ks" not in undetermined:
+            row["ks"] = _floats(np.broadcast_to(answer.ks, (3,)))
+        if "sigma" not in undetermined:
+            row["sigma"] = float(answer.sigma)
         if answer.lamp_positions is not None:
             row["lamp_positions"] = [_floats(p) for p in np.asarray(answer.lamp_positions).reshape(-1, 3)]
         if answer.covariance is not None:
@@ -361,8 +366,8 @@ def row_estimate(row: Mapping[str, Any], method: str) -> Estimate:
     return Estimate(
         method=method,
         lamp_position=np.asarray(row["lamp_position"], dtype=float),
-        ks=np.asarray(row["ks"], dtype=float),
-        sigma=float(row["sigma"]),
+        ks=np.asarray(row.get("ks", [math.nan] * 3), dtype=float),  # absent: undetermined (the row names it)
+        sigma=float(row.get("sigma", math.nan)),
         covariance=None if "covariance" not in row else _lamp_block(row["covariance"]),
         stages=stages,
         diagnostics={"undetermined": list(row["undetermined"])} if row.get("undetermined") else {},

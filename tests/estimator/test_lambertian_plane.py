@@ -47,7 +47,7 @@ def test_isotropic_lamp_is_exact(scene):
     assert np.isnan(est.ks).all() and np.isnan(est.sigma)
     assert np.isfinite(est.covariance[:3, :3]).all()
     assert np.isnan(est.covariance[3]).all() and np.isnan(est.covariance[:, 3]).all()
-    assert est.diagnostics["estimates"] == ["lamp"]
+    assert est.diagnostics["undetermined"] == ["ks", "sigma"]
     np.testing.assert_allclose(est.stages["fit"]["normal"], [0.0, 0.0, 1.0], atol=1e-12)
 
 

@@ -245,7 +245,7 @@ def test_recall_ladder_on_known_errors():
     assert g["ks_rel_error"]["recall"] == [0.5] * 5  # a NaN error is a miss too
     md = scorecard_markdown(card)
     assert "| < 1 mm | < 2 mm | < 5 mm | < 10 mm | < 20 mm |" in md
-    assert "## lamp (mm) (lamp_position_error_m, millimetres)" in md and "< 0.5 °" in md
+    assert "## lamp (mm) (lamp_position_error_m, absolute)" in md and "< 0.5 °" in md
     assert (card["failed"], card["runtime_s"]["total"]) == (1, 6.0)
     assert [(x["value"], x["n"], x["failed"]) for x in card["groups"][1:]] == [("a", 2, 0), ("b", 2, 1)]
 
