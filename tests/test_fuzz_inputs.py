@@ -399,6 +399,25 @@ def _estimate_argv(cap: Path, folder: Path) -> list[str]:
     return ["estimate", str(cap), "--method", "paper-init", "--json", str(folder / "est.json")]
 
 
+def _target_method_cases() -> None:
+    """The target methods on captures that lack what they read (issue 40): one line naming the capture and what is
+    missing, before any fit."""
+    cases = {
+        "mirror-spheres-no-balls": (["--method", "mirror-spheres"], "mirror spheres"),
+        "lambertian-card-no-card": (["--method", "lambertian-plane", "--set", "surface=card"], "matte_card"),
+        "lambertian-plane-sphere": (["--method", "lambertian-plane"], "plane"),
+    }
+    for name, (argv, culprit) in cases.items():
+        @case(f"method-{name}")
+        def build(folder, assets, argv=argv, culprit=culprit, name=name):
+            shape = {"shape": "sphere"} if name.endswith("sphere") else {}
+            cap = write_capture(analytic_capture(width=32, height=24, **shape), folder / "cap")
+            return ["estimate", str(cap), *argv, "--json", str(folder / "est.json")], culprit
+
+
+_target_method_cases()
+
+
 def _exr_byte_cases() -> None:
     rng = random.Random(f"{SEED}-exr")
     for n in range(10):  # truncated at a random point
