@@ -98,7 +98,7 @@ place in that file). Click a column to sort.</p>
 <p><label>category <select id="group">{% for g in groups %}<option value="{{ g }}">{{ g }}</option>{% endfor %}</select></label></p>
 {% for g in groups %}<section class="group" data-group="{{ g }}"><h2>{{ g }}</h2>
 <table class="board" data-suite="{{ name }}"><thead><tr>{% for c in columns %}<th>{{ c }}</th>{% endfor %}<th>scorecard</th></tr></thead><tbody>
-{% for b, row in rows[g] %}<tr data-json="{{ b.json }}">{% for c in columns %}{{ cell(row.cells.get(c), b) }}{% endfor %}
+{% for b, row in rows[g] %}<tr data-json="{{ b.json }}">{% for c in columns %}{{ cell(row.cells.get(c), b.json) }}{% endfor %}
 <td>{% if b.page %}<a href="{{ b.page }}">page</a>{% endif %} <a href="{{ b.json }}">json</a></td></tr>
 {% endfor %}</tbody></table></section>{% endfor %}
 {% endblock %}"""
@@ -141,8 +141,9 @@ def _env():
                               autoescape=True)  # fmt: skip
 
 
-def _cell(cell: Cell | None, board: Any, root: str = "") -> Any:
-    """A ``<td>``: each number a link to the board's JSON, its pointer in ``title`` and ``data-pointer``."""
+def _cell(cell: Cell | None, json: str, *, worse: bool = False) -> Any:
+    """A ``<td>``: each number a link to the JSON file ``json`` (site path), its pointer in ``title`` and
+    ``data-pointer``; ``worse`` marks it (a history run worse than the one before)."""
     from markupsafe import Markup, escape
 
     if cell is None:
@@ -150,23 +151,20 @@ def _cell(cell: Cell | None, board: Any, root: str = "") -> Any:
     if not cell.numbers:
         return Markup('<td class="text" data-sort="{}">{}</td>').format(cell.sort, cell.pattern)
     links = [Markup('<a href="{}" title="{}" data-pointer="{}" data-scale="{}">{}</a>').format(
-        root + board.json, n.pointer, n.pointer, f"{n.scale:g}", n.text) for n in cell.numbers]
-    return Markup('<td class="num" data-sort="{}">').format(cell.sort) + Markup(escape(cell.pattern).replace(
+        json, n.pointer, n.pointer, f"{n.scale:g}", n.text) for n in cell.numbers]
+    kind = "num worse" if worse else "num"
+    return Markup('<td class="{}" data-sort="{}">').format(kind, cell.sort) + Markup(escape(cell.pattern).replace(
         "{}", "\x00")).replace("\x00", "{}").format(*links) + Markup("</td>")  # fmt: skip
 
 
 def _history_cell(point, k: int, j: int) -> Any:
     """A history ``<td>``: the value and its interval, each a link into ``data/history.json``; marked when worse."""
-    from markupsafe import Markup
-
     base = f"/series/{k}/points/{j}"
     nums = [Number(float("nan") if v is None else v, show(float("nan") if v is None else v), f"{base}/{key}")
             for key, v in (("value", point["value"]), ("lo", point["lo"]), ("hi", point["hi"]))]  # fmt: skip
     cell = Cell("{}" if point["metric"] == "failed" else "{} [{}, {}]", tuple(nums[:1] if point["metric"] == "failed"
                                                                               else nums), nums[0].value)  # fmt: skip
-    board = type("B", (), {"json": "data/history.json"})
-    td = str(_cell(cell, board))
-    return Markup(td.replace('<td class="num"', '<td class="num worse"', 1) if point["worse"] else td)
+    return _cell(cell, "data/history.json", worse=bool(point["worse"]))
 
 
 def history_figure(s: Series) -> bytes:
