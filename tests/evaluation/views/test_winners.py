@@ -51,3 +51,52 @@ def test_too_few_seeds_or_one_method_writes_nothing():
     assert winners_table(_rows(MIN_SEEDS - 1), ["distance"]).empty
     one = _rows()
     assert winners_table(one[one["method"] == "balls"], ["distance"]).empty
+
+
+FAKES = '''
+import numpy as np
+from nearlight.estimator import Estimate
+
+def _off(capture, mm):
+    t = capture.truth
+    ks = np.asarray(t["bsdf"]["ks"]) * np.asarray(t["lamp_intensity"]) / 2
+    return Estimate(method="off", lamp_position=np.asarray(t["lamp_position"]) + mm / 1000, ks=ks,
+                    sigma=t["bsdf"]["sigma"])
+
+def near(capture):
+    return _off(capture, 1.0)
+
+def far(capture):
+    return _off(capture, 10.0)
+'''
+
+
+def test_a_sweep_report_with_ten_seeds_says_which_method_wins(tmp_path, monkeypatch):
+    """End to end on an analytic sweep: two fake methods off by (1, 1, 1) mm and (10, 10, 10) mm (√3 and 10√3 mm
+    every seed), 10 noisy seeds of the board with the lamp at two distances: the report writes the section, `winners.csv` and its figure, and
+    names the near one in both rows."""
+    import textwrap
+
+    import yaml
+
+    from nearlight.evaluation.engine.run import run_sweep
+    from nearlight.evaluation.engine.sweep import load_sweep
+    from nearlight.evaluation.views.report import write_report
+
+    (tmp_path / "nl_fakes_winners.py").write_text(textwrap.dedent(FAKES))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    doc = {"name": "winners", "renderer": "analytic",
+           "scene": {"width": 32, "height": 24, "lamp_position": [0.05, 0.15, 0.35]},
+           "axes": {"lamp_distance": [0.3, 0.45], "noise": {"sensor": {"full_well": 20000, "read_noise": 5.0,
+                                                                         "bits": 12}}},
+           "seeds": MIN_SEEDS, "methods": ["nl_fakes_winners:near", "nl_fakes_winners:far"]}  # fmt: skip
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    run_sweep(load_sweep(path), tmp_path / "run", workers=1, progress=False)
+    folder = write_report(tmp_path / "run")
+    wins = pd.read_csv(folder / "winners.csv")
+    assert set(wins["winner"]) == {"nl_fakes_winners:near"}
+    near = wins[wins["method"] == "nl_fakes_winners:near"]
+    assert np.allclose(near["median"], np.sqrt(3.0), rtol=1e-6)  # mm
+    assert "## Which method wins where" in (folder / "summary.md").read_text()
+    assert (folder / "winners.png").read_bytes()[:4] == b"\x89PNG"
