@@ -228,3 +228,24 @@ def guess(capture):
     captured = capsys.readouterr()
     assert captured.err.startswith("nearlight estimate: note: ks refused (ks-scale): ")
     assert captured.out.startswith("bright:guess: lamp (0.0500, 0.1500, 0.3500) m  ks (nan, nan, nan)")
+
+
+def test_a_lamp_only_estimate_is_held_to_finite_and_located_alone(capture):
+    """A method that states the lamp alone (``undetermined`` names ks and sigma: the target methods) reads no
+    highlight: NaN Ks and σ pass, a lamp far from the truth passes (no highlight rule judges it), a NaN lamp is
+    refused by ``finite``, and a 1-σ uncertainty beyond the lamp's distance from the camera by ``located``."""
+    from nearlight.estimator.sanity import review
+
+    lamp = np.asarray(DEFAULT_LAMP_POSITION, dtype=float)
+    alone = truth(ks=np.full(3, np.nan), sigma=np.nan, diagnostics={"undetermined": ["ks", "sigma"]})
+    assert review(capture, alone, {}).ok
+    assert review(capture, dataclasses.replace(alone, lamp_position=-lamp), {}).ok
+    refused = review(capture, dataclasses.replace(alone, lamp_position=np.array([np.nan, 0.0, 0.0])), {})
+    assert not refused.ok and refused.diagnostics["failure"]["rule"] == "finite"
+    far = float(np.linalg.norm(lamp - capture.camera.position))
+    loose = dataclasses.replace(alone, covariance=np.diag([(2 * far) ** 2, 1e-6, 1e-6, np.nan]))
+    refused = review(capture, loose, {})
+    assert not refused.ok and refused.diagnostics["failure"]["rule"] == "located"
+    assert "from the camera" in refused.diagnostics["failure"]["reason"]
+    # the same numbers without the declaration meet the highlight's rules (NaN σ: finite)
+    assert not review(capture, dataclasses.replace(alone, diagnostics={}), {}).ok
