@@ -160,8 +160,9 @@ def _cell(cell: Cell | None, json: str, *, worse: bool = False) -> Any:
 def _history_cell(point, k: int, j: int) -> Any:
     """A history ``<td>``: the value and its interval, each a link into ``data/history.json``; marked when worse."""
     base = f"/series/{k}/points/{j}"
-    nums = [Number(float("nan") if v is None else v, show(float("nan") if v is None else v), f"{base}/{key}")
-            for key, v in (("value", point["value"]), ("lo", point["lo"]), ("hi", point["hi"]))]  # fmt: skip
+    missing = float("nan") if point["metric"] == "failed" else float("inf")  # a null median is +∞: mostly misses
+    values = [missing if v is None else v for v in (point["value"], point["lo"], point["hi"])]
+    nums = [Number(v, show(v), f"{base}/{key}") for key, v in zip(("value", "lo", "hi"), values)]
     cell = Cell("{}" if point["metric"] == "failed" else "{} [{}, {}]", tuple(nums[:1] if point["metric"] == "failed"
                                                                               else nums), nums[0].value)  # fmt: skip
     return _cell(cell, "data/history.json", worse=bool(point["worse"]))

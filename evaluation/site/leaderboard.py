@@ -71,13 +71,24 @@ class Row:
 
 
 def show(x: float) -> str:
-    """A number as a table shows it: 3 significant digits, ``n/a`` for a missing or non-finite one."""
+    """A number as a table shows it: 3 significant digits, ``∞`` for +∞, ``n/a`` for a missing one."""
+    if math.isinf(x) and x > 0:
+        return "∞"
     return "n/a" if not math.isfinite(x) else f"{x:.3g}"
 
 
-def _number(card: Mapping[str, Any], pointer: str, scale: float = 1.0) -> Number:
+def value_at(card: Mapping[str, Any], pointer: str, scale: float = 1.0) -> float:
+    """The number at ``pointer`` in a scorecard, times ``scale``. A JSON null is +∞ where the scorecard means it
+    so (a median or its interval's bound where more than half the cases are misses:
+    :func:`nearlight.evaluation.suites.scorecard.median_ci`), NaN elsewhere (not given)."""
     value = resolve(card, pointer)
-    x = math.nan if value is None else float(value) * scale
+    if value is None:
+        return math.inf if "/median" in pointer else math.nan
+    return float(value) * scale
+
+
+def _number(card: Mapping[str, Any], pointer: str, scale: float = 1.0) -> Number:
+    x = value_at(card, pointer, scale)
     return Number(x, show(x), pointer, scale)
 
 

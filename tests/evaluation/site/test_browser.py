@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from nearlight.evaluation.site.leaderboard import resolve, show
+from nearlight.evaluation.site.leaderboard import show, value_at
 
 from .test_site import _Links
 
@@ -42,8 +42,7 @@ def test_the_built_site_in_a_browser_shows_every_number_of_its_json_and_every_fi
     links.feed(dom)
     assert len(links.numbers) > 4 * 12 * 15
     for n in links.numbers:
-        value = resolve(json.loads((site / n["json"]).read_text()), n["pointer"])
-        assert n["text"] == show(math.nan if value is None else float(value) * n["scale"]), n
+        assert n["text"] == show(value_at(json.loads((site / n["json"]).read_text()), n["pointer"], n["scale"])), n
     # the script ran: one category's table shows, the others wait for the menu
     assert dom.count('<section class="group" data-group="all">') == 1 and dom.count('hidden=""') == 11, dom[:500]
     broken = [p.relative_to(site).as_posix() for p in sorted(site.rglob("*.html"))
